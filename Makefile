@@ -1,0 +1,43 @@
+# Two commands for a newcomer: `make test` and `make table1`.
+# Each creates .venv if missing, installs the package (editable, with test extras)
+# and the one system library Open3D needs (libusb-1.0-0). A second run is quick.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: setup syslibs test table1 bench clean-venv
+
+setup: syslibs $(STAMP)
+
+syslibs:
+	@if ! /sbin/ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
+	    echo "installing libusb-1.0-0 (needed by Open3D)"; \
+	    (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
+	     (apt-get update -q >/dev/null && apt-get install -y -q libusb-1.0-0 >/dev/null)) || \
+	     { echo "error: could not install libusb-1.0-0 with apt-get"; exit 1; }; \
+	  else \
+	    echo "error: Open3D needs the system package libusb-1.0-0; install it (sudo apt-get install libusb-1.0-0) and rerun"; \
+	    exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+test: setup
+	$(BIN)/ruff check .
+	MPLBACKEND=Agg $(BIN)/python -m pytest
+
+table1: setup
+	$(BIN)/pbdgrasp table1 --seed 0
+
+bench: setup
+	$(BIN)/pbdgrasp bench
+
+clean-venv:
+	rm -rf $(VENV)

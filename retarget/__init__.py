@@ -1,0 +1,18 @@
+"""Kinematics of the SAH and the human hand, and the retargeting of a demonstration (paper section IV).
+
+The public API grows with the package; see the README for the configuration and frame conventions.
+"""
+
+from .lie import local, pose_from_q, q_from_pose, retract, se3_exp, se3_inverse, se3_log, so3_exp, so3_log
+
+__all__ = [
+    "local",
+    "pose_from_q",
+    "q_from_pose",
+    "retract",
+    "se3_exp",
+    "se3_inverse",
+    "se3_log",
+    "so3_exp",
+    "so3_log",
+]

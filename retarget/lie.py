@@ -1,0 +1,152 @@
+"""Rigid-body helpers, vectorized over leading dimensions, in GTSAM's conventions.
+
+Conventions used everywhere in pbdgrasp:
+
+* ``T_a_b`` (..., 4, 4) is the pose of frame b in frame a and maps points of b into a:
+  ``p_a = T_a_b @ p_b``; compose only when inner frames match, ``T_a_c = T_a_b @ T_b_c``.
+* The 19-D hand configuration is ``q = [p (3, m), r (3, rad), joints (13, rad)]``: the wrist position
+  and its rotation vector (scaled axis, the paper's orientation) in the world (or object) frame, then
+  the SAH joints in :data:`retarget.sah.JOINT_NAMES` order. See :func:`pose_from_q`.
+* Covariances of poses use GTSAM's Pose3 tangent ``xi = [omega (3, rad), v (3, m)]`` in the body frame
+  with right perturbation ``T = T_mean @ Exp(xi)`` (:func:`retract`); ``Exp`` is the full SE(3)
+  exponential, equal to ``gtsam.Pose3.Expmap`` and, in GTSAM's default build, ``Pose3.retract``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "skew",
+    "so3_exp",
+    "so3_log",
+    "se3_exp",
+    "se3_log",
+    "se3_inverse",
+    "retract",
+    "local",
+    "make_pose",
+    "pose_from_q",
+    "q_from_pose",
+]
+
+_SMALL = 1e-8
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrix of ``v`` (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack(
+        [
+            np.stack([z, -v[..., 2], v[..., 1]], -1),
+            np.stack([v[..., 2], z, -v[..., 0]], -1),
+            np.stack([-v[..., 1], v[..., 0], z], -1),
+        ],
+        -2,
+    )
+
+
+def so3_exp(omega: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from rotation vectors ``omega`` (..., 3) [rad]."""
+    omega = np.asarray(omega, dtype=float)
+    flat = omega.reshape(-1, 3)
+    return Rotation.from_rotvec(flat).as_matrix().reshape(omega.shape[:-1] + (3, 3))
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) [rad], angle in [0, pi], from rotation matrices (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    flat = R.reshape(-1, 3, 3)
+    return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def _coefficients(theta: np.ndarray):
+    """A = sin t / t, B = (1 - cos t) / t^2, C = (t - sin t) / t^3 with Taylor series near 0."""
+    small = theta < 1e-4
+    t = np.where(small, 1.0, theta)
+    t2 = theta * theta
+    A = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(t) / t)
+    B = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(t)) / (t * t))
+    C = np.where(small, 1 / 6 - t2 / 120 + t2 * t2 / 5040, (t - np.sin(t)) / (t * t * t))
+    return A, B, C
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """SE(3) exponential of ``xi = [omega, v]`` (..., 6) -> (..., 4, 4), as ``gtsam.Pose3.Expmap``."""
+    xi = np.asarray(xi, dtype=float)
+    omega, v = xi[..., :3], xi[..., 3:]
+    theta = np.linalg.norm(omega, axis=-1)
+    A, B, C = _coefficients(theta)
+    K = skew(omega)
+    K2 = K @ K
+    eye = np.eye(3)
+    R = eye + A[..., None, None] * K + B[..., None, None] * K2
+    V = eye + B[..., None, None] * K + C[..., None, None] * K2
+    T = np.zeros(xi.shape[:-1] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = np.einsum("...ij,...j->...i", V, v)
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """SE(3) logarithm (..., 4, 4) -> ``[omega, v]`` (..., 6), the inverse of :func:`se3_exp`."""
+    T = np.asarray(T, dtype=float)
+    omega = so3_log(T[..., :3, :3])
+    theta = np.linalg.norm(omega, axis=-1)
+    small = theta < 1e-4
+    t = np.where(small, 1.0, theta)
+    # V^-1 = I - K/2 + D K^2 with D = (1 - A / (2 B)) / t^2
+    A, B, _ = _coefficients(theta)
+    D = np.where(small, 1 / 12 + theta**2 / 720, (1 - A / (2 * B)) / (t * t))
+    K = skew(omega)
+    Vinv = np.eye(3) - 0.5 * K + D[..., None, None] * (K @ K)
+    v = np.einsum("...ij,...j->...i", Vinv, T[..., :3, 3])
+    return np.concatenate([omega, v], axis=-1)
+
+
+def se3_inverse(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    T = np.asarray(T, dtype=float)
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def retract(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Right (body) perturbation ``T @ Exp(xi)``, GTSAM's ``Pose3.retract``; broadcasts."""
+    return np.asarray(T, dtype=float) @ se3_exp(xi)
+
+
+def local(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
+    """Body-frame difference ``Log(T_a^-1 T_b)`` (..., 6), GTSAM's ``T_a.localCoordinates(T_b)``."""
+    return se3_log(se3_inverse(T_a) @ np.asarray(T_b, dtype=float))
+
+
+def make_pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Homogeneous transforms (..., 4, 4) from rotations (..., 3, 3) and translations (..., 3)."""
+    R = np.asarray(R, dtype=float)
+    p = np.asarray(p, dtype=float)
+    shape = np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
+    T = np.zeros(shape + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = p
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def pose_from_q(q: np.ndarray) -> np.ndarray:
+    """Wrist pose (..., 4, 4) from configurations ``q`` (..., >=6): position then rotation vector."""
+    q = np.asarray(q, dtype=float)
+    return make_pose(so3_exp(q[..., 3:6]), q[..., :3])
+
+
+def q_from_pose(T: np.ndarray) -> np.ndarray:
+    """The first six entries of ``q`` (..., 6), ``[p (m), rotation vector (rad)]``, from poses (..., 4, 4)."""
+    T = np.asarray(T, dtype=float)
+    return np.concatenate([T[..., :3, 3], so3_log(T[..., :3, :3])], axis=-1)
