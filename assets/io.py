@@ -24,6 +24,7 @@ __all__ = [
     "require_shape",
     "require_finite",
     "require_spd",
+    "require_psd",
     "require_rotation",
 ]
 
@@ -119,6 +120,21 @@ def require_spd(name: str, cov, path=None, rtol: float = 1e-9) -> np.ndarray:
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
         raise InputError(f"{name}: covariance is not positive definite", path) from None
+    return cov
+
+
+def require_psd(name: str, cov, path=None, rtol: float = 1e-9) -> np.ndarray:
+    """Check that every matrix in ``cov`` (..., n, n) is symmetric positive semi-definite.
+
+    Degenerate covariances are allowed (the retargeting error Sigma_r(t) is rank-deficient by design);
+    eigenvalues may be negative only by ``rtol`` times the largest magnitude.
+    """
+    cov = require_finite(name, cov, path)
+    scale = max(float(np.max(np.abs(cov))), 1e-300) if cov.size else 1.0
+    if not np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=0.0, atol=rtol * scale):
+        raise InputError(f"{name}: covariance is not symmetric", path)
+    if cov.size and np.linalg.eigvalsh(cov).min() < -1e-7 * scale:
+        raise InputError(f"{name}: covariance is not positive semi-definite", path)
     return cov
 
 
