@@ -1,0 +1,214 @@
+"""RRT-CONNECT with a learned sampling distribution and a grasp-quality goal test (paper section VII).
+
+The planner knows nothing of pybullet or GTSAM: it takes injected callables (as caelan/motion-planners
+does), so a learned sampler is just another ``sample_fn``:
+
+* ``sample_fn(rng) -> (y (d,), is_goal_sample: bool)``: a draw of P(Y); ``is_goal_sample`` is true when
+  the draw came from the last time step of a strategy (k = T_s), or from the goal distribution of a
+  baseline;
+* ``is_edge_free(q_a, q_b) -> bool``: the straight edge (in the space's interpolation) is free; the
+  planner's steps are at most one unit of the configuration space long;
+* ``quality_fn(q) -> (quality, payload)``: phi_o, the grasp quality after closing the hand at ``q``.
+
+The tree is a forest rooted at the start configurations. Each iteration draws ``y``, finds the nearest
+node and extends towards ``y`` with the CONNECT heuristic (repeated unit steps until ``y`` is reached or
+an edge is blocked). When a goal sample has been reached, i.e. added to the tree, phi_o is evaluated
+there; a quality ``>= quality_threshold`` ends the search with the path from its root.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["PlannerConfig", "PlanResult", "rrt_connect"]
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Settings of :func:`rrt_connect`.
+
+    Attributes:
+        time_limit_s: wall-clock budget of one planning query.
+        max_nodes: the search stops when the tree holds this many nodes.
+        quality_threshold: epsilon; a grasp with phi_o >= it is valid (the paper's 0.05).
+        step: the longest edge added in one extension step, in configuration-space units.
+        connect: extend with CONNECT (repeated steps); ``False`` gives single-step EXTEND.
+    """
+
+    time_limit_s: float = 10.0
+    max_nodes: int = 50_000
+    quality_threshold: float = 0.05
+    step: float = 1.0
+    connect: bool = True
+
+    def __post_init__(self):
+        if not (self.time_limit_s > 0 and self.max_nodes > 0 and self.step > 0):
+            raise ValueError(f"PlannerConfig: time_limit_s, max_nodes and step must be > 0, found {self}")
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """The outcome of one planning query.
+
+    Attributes:
+        success: a grasp with quality >= the threshold was found.
+        message: why the search ended.
+        eta_s: time to the first valid grasp (or the time spent, on failure) [s].
+        nodes: nodes in the tree (roots included).
+        quality: phi_o of the grasp found (the best one evaluated, on failure).
+        path: (K, d) configurations from a root to the grasp; empty on failure.
+        grasp: the quality function's payload of the grasp found (e.g. the closed hand), or ``None``.
+        quality_evaluations, collision_checks, iterations: counters.
+        time_quality_s, time_collision_s: time spent inside ``quality_fn`` and ``is_edge_free``.
+    """
+
+    success: bool
+    message: str
+    eta_s: float
+    nodes: int
+    quality: float
+    path: np.ndarray
+    grasp: Any = None
+    quality_evaluations: int = 0
+    collision_checks: int = 0
+    iterations: int = 0
+    time_quality_s: float = 0.0
+    time_collision_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+class _Forest:
+    """Nodes, their parents and their distance features in growing arrays."""
+
+    def __init__(self, space, roots: np.ndarray, capacity: int):
+        n, d = roots.shape
+        cap = max(capacity, n)
+        f0 = space.features(roots)
+        self.space = space
+        self.q = np.empty((cap, d))
+        self.f = np.empty((cap, f0.shape[1]))
+        self.parent = np.full(cap, -1, dtype=np.int64)
+        self.q[:n], self.f[:n] = roots, f0
+        self.count = n
+
+    def add(self, q: np.ndarray, parent: int) -> int:
+        i = self.count
+        self.q[i] = q
+        self.f[i] = self.space.features(q)[0]
+        self.parent[i] = parent
+        self.count += 1
+        return i
+
+    def nearest(self, q: np.ndarray) -> int:
+        return int(np.argmin(self.space.distance_to(self.f[: self.count], q)))
+
+    def path_to(self, i: int) -> np.ndarray:
+        idx = []
+        while i >= 0:
+            idx.append(i)
+            i = int(self.parent[i])
+        return self.q[idx[::-1]].copy()
+
+
+def rrt_connect(
+    roots: np.ndarray,
+    sample_fn: Callable[[np.random.Generator], tuple[np.ndarray, bool]],
+    is_edge_free: Callable[[np.ndarray, np.ndarray], bool],
+    quality_fn: Callable[[np.ndarray], tuple[float, Any]],
+    space,
+    rng: np.random.Generator,
+    config: PlannerConfig = PlannerConfig(),
+) -> PlanResult:
+    """Grow a forest from ``roots`` until a goal sample with quality >= the threshold is reached.
+
+    Args:
+        roots: (R, d) collision-free start configurations (the paper draws 100 from N(b_1, B_1)).
+        sample_fn: the sampling distribution P(Y), see the module docstring.
+        is_edge_free: edge validity (counted as one collision check per call).
+        quality_fn: phi_o.
+        space: a configuration space of :mod:`planning.config_space`.
+        rng: the only source of randomness.
+        config: limits and thresholds.
+
+    Returns:
+        A :class:`PlanResult`; failure is a result with ``success=False`` and the reason.
+    """
+    roots = np.atleast_2d(np.asarray(roots, dtype=float))
+    t0 = time.perf_counter()
+    if len(roots) == 0:
+        return PlanResult(False, "no collision-free start configuration", 0.0, 0, 0.0, np.empty((0, 0)))
+    forest = _Forest(space, roots, min(config.max_nodes, 4096))
+    stats = {"checks": 0, "evals": 0, "t_col": 0.0, "t_q": 0.0, "best": 0.0, "best_payload": None}
+
+    def edge_free(a, b):
+        t = time.perf_counter()
+        ok = is_edge_free(a, b)
+        stats["t_col"] += time.perf_counter() - t
+        stats["checks"] += 1
+        return ok
+
+    def result(success, message, path=None, quality=None, payload=None, it=0):
+        return PlanResult(
+            success=success,
+            message=message,
+            eta_s=time.perf_counter() - t0,
+            nodes=forest.count,
+            quality=float(stats["best"] if quality is None else quality),
+            path=np.empty((0, roots.shape[1])) if path is None else path,
+            grasp=stats["best_payload"] if payload is None else payload,
+            quality_evaluations=stats["evals"],
+            collision_checks=stats["checks"],
+            iterations=it,
+            time_quality_s=stats["t_q"],
+            time_collision_s=stats["t_col"],
+        )
+
+    it = 0
+    while True:
+        if time.perf_counter() - t0 > config.time_limit_s:
+            return result(False, f"time limit of {config.time_limit_s:g} s reached", it=it)
+        if forest.count >= config.max_nodes:
+            return result(False, f"node limit of {config.max_nodes} reached", it=it)
+        it += 1
+        y, is_goal = sample_fn(rng)
+        i = forest.nearest(y)
+        reached = False
+        while forest.count < config.max_nodes:
+            q_near = forest.q[i]
+            d = space.distance(q_near, y)
+            reached = d <= config.step
+            q_new = y if reached else space.interpolate(q_near, y, config.step / d)
+            if not edge_free(q_near, q_new):
+                reached = False
+                break
+            if forest.count >= len(forest.q):
+                _grow(forest)
+            i = forest.add(q_new, i)
+            if reached or not config.connect:
+                break
+        if is_goal and reached:
+            t = time.perf_counter()
+            quality, payload = quality_fn(forest.q[i])
+            stats["t_q"] += time.perf_counter() - t
+            stats["evals"] += 1
+            if quality > stats["best"] or stats["best_payload"] is None:
+                stats["best"], stats["best_payload"] = float(quality), payload
+            if quality >= config.quality_threshold:
+                return result(True, "valid grasp found", forest.path_to(i), quality, payload, it)
+
+
+def _grow(forest: _Forest) -> None:
+    cap = 2 * len(forest.q)
+    for name in ("q", "f"):
+        arr = getattr(forest, name)
+        new = np.empty((cap, arr.shape[1]))
+        new[: forest.count] = arr[: forest.count]
+        setattr(forest, name, new)
+    parent = np.full(cap, -1, dtype=np.int64)
+    parent[: forest.count] = forest.parent[: forest.count]
+    forest.parent = parent

@@ -1,0 +1,91 @@
+"""RRT-CONNECT on a toy 2-D problem with a narrow passage, checked independently of the planner."""
+
+import numpy as np
+import pytest
+
+from planning.config_space import EuclideanSpace, HandConfigSpace
+from planning.rrt_connect import PlannerConfig, rrt_connect
+
+# A wall at x in [0.45, 0.55] with a gap y in [0.48, 0.52]; start left, goal region right.
+WALL = (0.45, 0.55)
+GAP = (0.48, 0.52)
+GOAL = np.array([0.9, 0.9])
+GOAL_RADIUS = 0.05
+RESOLUTION = 0.002
+
+
+def point_free(p):
+    x, y = p
+    if not (0 <= x <= 1 and 0 <= y <= 1):
+        return False
+    return not (WALL[0] <= x <= WALL[1] and not (GAP[0] <= y <= GAP[1]))
+
+
+def edge_free(a, b):
+    n = max(2, int(np.ceil(np.linalg.norm(b - a) / RESOLUTION)) + 1)
+    return all(point_free(a + s * (b - a)) for s in np.linspace(0, 1, n))
+
+
+def sample_fn(rng):
+    if rng.random() < 0.1:
+        return GOAL + rng.normal(scale=0.02, size=2), True
+    return rng.uniform(0, 1, size=2), False
+
+
+def quality_fn(q):
+    # 1 at the goal centre, 0 outside the goal disc: valid when within GOAL_RADIUS / 2.
+    return max(0.0, 1.0 - np.linalg.norm(q - GOAL) / GOAL_RADIUS), None
+
+
+def plan(seed, **kw):
+    cfg = PlannerConfig(time_limit_s=30, max_nodes=20000, quality_threshold=0.5, **kw)
+    roots = np.array([[0.1, 0.1], [0.1, 0.5]])
+    return rrt_connect(roots, sample_fn, edge_free, quality_fn, EuclideanSpace((0.02, 0.02)),
+                       np.random.default_rng(seed), cfg)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_path_through_narrow_passage_is_valid(seed):
+    res = plan(seed)
+    assert res.success, res.message
+    path = res.path
+    assert any(np.allclose(path[0], r) for r in ([0.1, 0.1], [0.1, 0.5]))
+    assert np.linalg.norm(path[-1] - GOAL) <= GOAL_RADIUS / 2 + 1e-12
+    assert res.quality >= 0.5
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        assert edge_free(a, b)  # independent re-check, finer than the planner's step
+        assert np.linalg.norm((b - a) / 0.02) <= 1.0 + 1e-9
+    # the path crosses the wall through the gap
+    crossing = [p for p in path if WALL[0] <= p[0] <= WALL[1]]
+    assert crossing and all(GAP[0] <= p[1] <= GAP[1] for p in crossing)
+    assert res.collision_checks > 0 and res.quality_evaluations >= 1
+
+
+def test_same_seed_same_result():
+    a, b = plan(5), plan(5)
+    np.testing.assert_array_equal(a.path, b.path)
+    assert (a.nodes, a.iterations, a.quality_evaluations) == (b.nodes, b.iterations, b.quality_evaluations)
+
+
+def test_node_limit_is_a_failure_result_not_none():
+    res = plan(0, step=0.5)
+    res = rrt_connect(np.array([[0.1, 0.1]]), sample_fn, edge_free, lambda q: (0.0, None),
+                      EuclideanSpace((0.02, 0.02)), np.random.default_rng(0),
+                      PlannerConfig(time_limit_s=30, max_nodes=300))
+    assert not res.success and "node limit" in res.message and res.nodes == 300
+    assert res.path.shape == (0, 2)
+
+
+def test_hand_space_distance_and_interpolation():
+    space = HandConfigSpace()
+    a = np.zeros(19)
+    b = np.zeros(19)
+    b[0] = 0.03  # 3 cm
+    b[3] = np.deg2rad(20.0)  # 20 deg about x
+    b[10] = np.deg2rad(30.0)
+    expected = np.sqrt(3.0**2 + 4.0**2 + 3.0**2)
+    assert space.distance(a, b) == pytest.approx(expected, rel=1e-9)
+    mid = space.interpolate(a, b, 0.5)
+    assert space.distance(a, mid) == pytest.approx(expected / 2, rel=1e-9)
+    feats = space.features(np.stack([a, b]))
+    np.testing.assert_allclose(space.distance_to(feats, b), [expected, 0.0], atol=1e-7)
