@@ -152,9 +152,8 @@ class HandModel:
             if mim is not None and jtype != "fixed":
                 mimic = mim.get("joint")
                 mult, off = float(mim.get("multiplier", 1.0)), float(mim.get("offset", 0.0))
-            raw.append(
-                Joint(name, jtype, parent, child, make_pose(_rpy_matrix(rpy), xyz), axis, limits, mimic, mult, off)
-            )
+            T_parent_joint = make_pose(_rpy_matrix(rpy), xyz)
+            raw.append(Joint(name, jtype, parent, child, T_parent_joint, axis, limits, mimic, mult, off))
         children = {j.child for j in raw}
         roots = [ln for ln in links if ln not in children]
         if len(roots) != 1:
@@ -176,7 +175,8 @@ class HandModel:
         limits = np.array([next(j.limits for j in raw if j.name == n) for n in actuated], dtype=float)
         link_names = (roots[0],) + tuple(j.child for j in order)
         plan = _build_plan(order, actuated)
-        return cls(root.get("name", path.stem), roots[0], tuple(order), tuple(actuated), limits, link_names, plan)
+        name = root.get("name", path.stem)
+        return cls(name, roots[0], tuple(order), tuple(actuated), limits, link_names, plan)
 
     def expand(self, joints: np.ndarray) -> np.ndarray:
         """Values of every joint in :attr:`joints` order (fixed = 0, mimic applied): (..., n) -> (..., J)."""

@@ -55,7 +55,10 @@ FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring")
 FINGER_JOINTS = MappingProxyType(
     {f: tuple(i for i, n in enumerate(JOINT_NAMES) if n.startswith(f + "_")) for f in FINGERS}
 )
-"""finger -> indices into the 13-vector: thumb (0, 1, 2, 3), index (4, 5, 6), middle (7, 8, 9), ring (10, 11, 12)."""
+"""finger -> indices into the 13-vector.
+
+thumb (0, 1, 2, 3), index (4, 5, 6), middle (7, 8, 9), ring (10, 11, 12).
+"""
 
 URDF_JOINT_NAMES: tuple[str, ...] = JOINT_NAMES + tuple(f"{f}_dist" for f in FINGERS)
 """The 13 actuated joints then the 4 distal mimic joints (thumb, index, middle, ring)."""
@@ -95,13 +98,20 @@ JOINT_LIMITS.setflags(write=False)
 
 
 def expand_mimic(joints: np.ndarray) -> np.ndarray:
-    """The 17 URDF joint values (:data:`URDF_JOINT_NAMES`) from the 13 actuated ones: (..., 13) -> (..., 17)."""
+    """The 17 URDF joint values (:data:`URDF_JOINT_NAMES`) from the 13 actuated ones.
+
+    Args:
+        joints: (..., 13) [rad].
+
+    Returns:
+        (..., 17) [rad], the distal joints equal to the mid ones.
+    """
     joints = np.asarray(joints, dtype=float)
     return np.concatenate([joints, joints[..., _MID]], axis=-1)
 
 
 def fk(joints: np.ndarray) -> dict[str, np.ndarray]:
-    """Link poses ``T_wrist_link`` (..., 4, 4) for joints (..., 13) [rad]; the distal joints follow the mid ones."""
+    """Link poses ``T_wrist_link`` (..., 4, 4) for joints (..., 13) [rad]; distal joints copy the mids."""
     return model().fk(joints)
 
 
@@ -112,7 +122,7 @@ def fingertip_positions(joints: np.ndarray) -> np.ndarray:
 
 
 def fingertip_positions_in(T_frame_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
-    """Fingertip positions in another frame: ``T_frame_wrist`` (..., 4, 4), joints (..., 13) -> (..., 4, 3)."""
+    """Fingertip positions (..., 4, 3) [m] in a frame from ``T_frame_wrist`` (..., 4, 4), joints (..., 13)."""
     T = np.asarray(T_frame_wrist, dtype=float)
     p = fingertip_positions(joints)
     return np.einsum("...ij,...kj->...ki", T[..., :3, :3], p) + T[..., None, :3, 3]

@@ -84,7 +84,7 @@ def test_fk_matches_pybullet(bullet):
     err_m, err_rad = 0.0, 0.0
     for k, q in enumerate(joints):
         _set(bullet, q)
-        for name, (i, child) in index.items():
+        for i, child in index.values():
             st = pb.getLinkState(rid, i, computeForwardKinematics=True, physicsClientId=cid)
             R = np.array(pb.getMatrixFromQuaternion(st[5])).reshape(3, 3)
             T_world_link = lie.make_pose(R, np.array(st[4]))
