@@ -1,0 +1,85 @@
+"""``pbdgrasp render``: an offscreen picture of a scene with the hand (pybullet TinyRenderer)."""
+
+from __future__ import annotations
+
+import io
+import logging
+
+import numpy as np
+
+from assets.errors import InputError
+from assets.io import atomic_write
+
+NAME = "render"
+HELP = "render a scene with the hand at a configuration to a PNG"
+ORDER = 20
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--scene", required=True, help="scene name (pbdgrasp assets) or path to a scene YAML")
+    p.add_argument("--q", help="hand configuration Q.json (default: open hand hovering above the object)")
+    p.add_argument("--hand", default="sah", help="hand model (default sah)")
+    p.add_argument("--view", choices=["side", "top", "both"], default="side")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("-o", "--output", required=True, help="output PNG")
+
+
+def hover_q(world) -> np.ndarray:
+    """An open hand pointing down, 5 cm above the top of the object (raised until collision-free)."""
+    import pybullet as pb
+
+    lo, hi = pb.getAABB(world.object_id, physicsClientId=world.client)
+    q = world.rest_q()
+    q[:3] = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.05 + reach_m(world)]
+    q[3:6] = [np.pi, 0.0, 0.0]  # wrist z (towards the fingers) pointing down
+    for _ in range(40):
+        if world.is_free(q):
+            return q
+        q[2] += 0.02
+    log.warning("no collision-free hover configuration found; rendering the last one tried")
+    return q
+
+
+def reach_m(world) -> float:
+    """Distance [m] from the wrist to the farthest point of the open hand along the wrist z axis."""
+    import pybullet as pb
+
+    q = world.rest_q()
+    q[2] = 3.0
+    world.set_q(q)
+    tops = [
+        pb.getAABB(world.hand_id, i, physicsClientId=world.client)[1][2]
+        for i in range(-1, len(world.link_names))
+    ]
+    return max(tops) - 3.0
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    plt.imsave(buf, rgb, format="png")
+    return buf.getvalue()
+
+
+def run(args) -> int:
+    from planning.qfile import load_q
+    from planning.world import World
+
+    if args.width < 16 or args.height < 16 or args.width > 4096 or args.height > 4096:
+        raise InputError(f"--width/--height: expected 16..4096 pixels, found {args.width} x {args.height}")
+    with World(args.scene, hand=args.hand) as world:
+        q = load_q(args.q, hand=args.hand) if args.q else hover_q(world)
+        views = ["side", "top"] if args.view == "both" else [args.view]
+        images = [world.render(q, args.width, args.height, camera=v) for v in views]
+        free = world.is_free(q)
+    rgb = np.concatenate(images, axis=1)
+    atomic_write(args.output, lambda f: f.write(png_bytes(rgb)))
+    print(f"wrote {args.output} ({rgb.shape[1]} x {rgb.shape[0]}); hand {'free' if free else 'IN COLLISION'}")
+    return 0

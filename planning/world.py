@@ -1,0 +1,385 @@
+"""The pybullet world of a scene: the hand (teleported), the table, the target object and obstacles.
+
+One :class:`World` owns one pybullet client in DIRECT mode (never the global default client); close it
+with :meth:`World.close` or use it as a context manager. Everything but the hand is a static body
+(mass 0, concave triangle meshes for the objects). The hand is loaded as a movable multibody that is
+never stepped, only teleported by :meth:`World.set_q`, so Bullet computes its contacts with the static
+bodies and, with ``URDF_USE_SELF_COLLISION``, between its own links (parent-child pairs excluded).
+
+Collision query costs (this machine): see ``tests/test_world.py`` and the README.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+from scipy.spatial.transform import Rotation
+
+import assets
+from assets.errors import InputError
+
+from .scene import Scene, load_scene
+
+__all__ = ["Contact", "World", "default_camera", "hand_joint_names", "hand_rest_joints"]
+
+log = logging.getLogger(__name__)
+
+_COLORS = {"table": (0.55, 0.42, 0.3, 1.0), "obstacle": (0.45, 0.55, 0.45, 1.0)}
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact (or near contact) of the hand.
+
+    Attributes:
+        link: the hand link's name.
+        other: ``table``, the object's name, an obstacle's label, or ``self:<link>`` for self-collision.
+        point_world: (3,) the point on the hand [m].
+        normal_world: (3,) the contact normal, from the other body towards the hand.
+        distance_m: signed distance, negative in penetration.
+    """
+
+    link: str
+    other: str
+    point_world: tuple[float, float, float]
+    normal_world: tuple[float, float, float]
+    distance_m: float
+
+
+def _urdf_joints(urdf: Path) -> tuple[list[str], dict[str, tuple[str, float, float]]]:
+    """Actuated joint names (URDF order) and mimic joints ``{name: (master, multiplier, offset)}``."""
+    actuated, mimic, _ = _urdf_joint_table(urdf)
+    return actuated, mimic
+
+
+def _urdf_joint_table(urdf: Path):
+    root = ET.parse(urdf).getroot()
+    actuated, mimic, limits = [], {}, {}
+    for j in root.iter("joint"):
+        if j.get("type") in ("fixed", "floating", "planar"):
+            continue
+        m = j.find("mimic")
+        if m is not None:
+            mimic[j.get("name")] = (m.get("joint"), float(m.get("multiplier", 1)), float(m.get("offset", 0)))
+            continue
+        actuated.append(j.get("name"))
+        lim = j.find("limit")
+        if lim is not None and j.get("type") != "continuous":
+            limits[j.get("name")] = (float(lim.get("lower", 0)), float(lim.get("upper", 0)))
+    return actuated, mimic, limits
+
+
+def hand_rest_joints(hand: str) -> np.ndarray:
+    """The rest (open) pose of a hand's joints in :func:`hand_joint_names` order: 0 clipped into the
+    URDF limits (SAH: the middle flexions sit at their 4 deg lower limit) [rad]."""
+    _, _, limits = _urdf_joint_table(assets.hand_urdf(hand))
+    out = []
+    for name in hand_joint_names(hand):
+        lo, hi = limits.get(name, (0.0, 0.0))
+        out.append(float(np.clip(0.0, lo, hi)) if hi > lo else 0.0)
+    return np.array(out)
+
+
+def hand_joint_names(hand: str) -> list[str]:
+    """The joint order of ``q[6:]`` for a hand: ``retarget.sah.JOINT_NAMES`` for the SAH, else URDF order."""
+    actuated, _ = _urdf_joints(assets.hand_urdf(hand))
+    if hand == "sah":
+        try:
+            from retarget.sah import JOINT_NAMES
+        except ImportError:  # pragma: no cover - until retarget.sah exists
+            return actuated
+        if sorted(JOINT_NAMES) != sorted(actuated):
+            raise InputError(
+                f"retarget.sah.JOINT_NAMES {list(JOINT_NAMES)} disagree with the URDF's {actuated}"
+            )
+        return list(JOINT_NAMES)
+    return actuated
+
+
+def _quat_from_rotvec(r: np.ndarray) -> list[float]:
+    """Quaternion [x, y, z, w] of a rotation vector (3,) [rad]; cheaper than scipy for one vector."""
+    theta = math.sqrt(float(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
+    k = 0.5 - theta * theta / 48.0 if theta < 1e-6 else math.sin(theta / 2) / theta
+    return [float(r[0]) * k, float(r[1]) * k, float(r[2]) * k, math.cos(theta / 2)]
+
+
+def _quat_xyzw(R: np.ndarray) -> list[float]:
+    return list(Rotation.from_matrix(R).as_quat())
+
+
+def default_camera(scene: Scene, view: str = "side") -> dict:
+    """Camera parameters looking at the target object: ``eye``, ``target``, ``up`` (world, m), ``fov_deg``.
+
+    Args:
+        scene: the scene.
+        view: ``side`` (from the front-right, 30 deg above the table) or ``top`` (from above).
+    """
+    meta = assets.object_metadata(scene.object.name)
+    bb = meta["bounding_box_m"]
+    centre_object = (np.array(bb["min"]) + np.array(bb["max"])) / 2
+    target = (scene.T_world_object @ np.append(centre_object, 1.0))[:3]
+    target[2] = max(target[2], 0.06)
+    if view == "top":
+        return {"eye": target + [0.0, -0.02, 0.9], "target": target, "up": [0.0, 1.0, 0.0], "fov_deg": 45.0}
+    if view != "side":
+        raise InputError(f"unknown camera view {view!r}; valid: side, top")
+    d, az, el = 0.95, np.radians(-35.0), np.radians(30.0)
+    eye = target + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return {"eye": eye, "target": target + [0, 0, 0.08], "up": [0.0, 0.0, 1.0], "fov_deg": 45.0}
+
+
+class World:
+    """A pybullet world built from a scene, for collision and distance queries and pictures.
+
+    Args:
+        scene: a :class:`Scene` or a scene name/path for :func:`load_scene`.
+        hand: the hand to load (``sah``: q is (19,); ``human``: q is (6 + 20,)).
+
+    Attributes:
+        client: the pybullet client id.
+        hand_id, object_id, table_id: body ids; obstacle_ids: tuple of body ids (scene order).
+        link_names: the hand's link names by pybullet link index (index -1, the wrist, is ``base_name``).
+        joint_names: the order of ``q[6:]``.
+    """
+
+    def __init__(self, scene: Scene | str | Path, hand: str = "sah"):
+        self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        self.hand = hand
+        self.client = pb.connect(pb.DIRECT)
+        try:
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+
+    # --------------------------------------------------------------------------------------------
+    def _build(self) -> None:
+        c, s = self.client, self.scene
+        pb.setAdditionalSearchPath(str(assets.ROOT), physicsClientId=c)
+        half = np.array(s.table.size_m) / 2
+        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=c)
+        vis = pb.createVisualShape(
+            pb.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=_COLORS["table"], physicsClientId=c
+        )
+        self.table_id = pb.createMultiBody(
+            0.0, shape, vis, s.table.T_world_table[:3, 3].tolist(), physicsClientId=c
+        )
+        self._names = {self.table_id: "table"}
+        self.object_id = self._load_object(s.object.name, s.T_world_object)
+        self._names[self.object_id] = s.object.name
+        ids = []
+        for ob in s.obstacles:
+            ids.append(self._load_obstacle(ob))
+            self._names[ids[-1]] = ob.label
+        self.obstacle_ids = tuple(ids)
+
+        urdf = assets.hand_urdf(self.hand)
+        flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+        self.hand_id = pb.loadURDF(str(urdf), basePosition=[0, 0, 2.0], flags=flags, physicsClientId=c)
+        self._names[self.hand_id] = "hand"
+        n = pb.getNumJoints(self.hand_id, physicsClientId=c)
+        infos = [pb.getJointInfo(self.hand_id, i, physicsClientId=c) for i in range(n)]
+        self.base_name = pb.getBodyInfo(self.hand_id, physicsClientId=c)[0].decode()
+        self.link_names = [info[12].decode() for info in infos]
+        index = {info[1].decode(): i for i, info in enumerate(infos)}
+        actuated, mimic = _urdf_joints(urdf)
+        self.joint_names = hand_joint_names(self.hand)
+        self._q_index = np.array([index[name] for name in self.joint_names])
+        self._mimic = [
+            (index[m], self.joint_names.index(master), k, off) for m, (master, k, off) in mimic.items()
+        ]
+        self._all_joints = [int(i) for i in self._q_index] + [m[0] for m in self._mimic]
+        dyn = pb.getDynamicsInfo(self.hand_id, -1, physicsClientId=c)
+        self._wrist_inertial = (dyn[3], dyn[4])  # pybullet's base pose is that of its inertial frame
+        self._bodies = (self.table_id, self.object_id, *self.obstacle_ids)
+        self.dof = 6 + len(self.joint_names)
+        self.q = None
+        log.debug(
+            "world %s: hand %s with %d joints, %d obstacles",
+            s.name,
+            self.hand,
+            len(self.joint_names),
+            len(self.obstacle_ids),
+        )
+
+    def _load_object(self, name: str, T_world: np.ndarray, color=None) -> int:
+        c = self.client
+        body = pb.loadURDF(
+            str(assets.object_urdf(name)),
+            T_world[:3, 3].tolist(),
+            _quat_xyzw(T_world[:3, :3]),
+            useFixedBase=True,
+            physicsClientId=c,
+        )
+        if color is not None:
+            pb.changeVisualShape(body, -1, rgbaColor=color, physicsClientId=c)
+        return body
+
+    def _load_obstacle(self, ob) -> int:
+        c, T = self.client, ob.T_world_obstacle
+        pos, quat = T[:3, 3].tolist(), _quat_xyzw(T[:3, :3])
+        rgba = _COLORS["obstacle"]
+        if ob.type == "object":
+            return self._load_object(ob.name, T, color=rgba)
+        if ob.type == "box":
+            half = (np.array(ob.size_m) / 2).tolist()
+            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c)
+            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=rgba, physicsClientId=c)
+        elif ob.type == "cylinder":
+            col = pb.createCollisionShape(
+                pb.GEOM_CYLINDER, radius=ob.radius_m, height=ob.height_m, physicsClientId=c
+            )
+            vis = pb.createVisualShape(
+                pb.GEOM_CYLINDER, radius=ob.radius_m, length=ob.height_m, rgbaColor=rgba, physicsClientId=c
+            )
+        else:
+            scale = [ob.scale] * 3
+            col = pb.createCollisionShape(
+                pb.GEOM_MESH,
+                fileName=str(ob.file),
+                meshScale=scale,
+                flags=pb.GEOM_FORCE_CONCAVE_TRIMESH,
+                physicsClientId=c,
+            )
+            vis = pb.createVisualShape(
+                pb.GEOM_MESH, fileName=str(ob.file), meshScale=scale, rgbaColor=rgba, physicsClientId=c
+            )
+        if col < 0:
+            raise InputError(f"obstacle {ob.label}: pybullet could not build its shape")
+        return pb.createMultiBody(0.0, col, vis, pos, quat, physicsClientId=c)
+
+    # --------------------------------------------------------------------------------------------
+    def set_q(self, q: np.ndarray) -> None:
+        """Teleport the hand to ``q`` (dof,) = [wrist position (m), rotation vector (rad), joints (rad)].
+
+        The coupled (mimic) joints follow their masters as the URDF says (SAH: distal = middle).
+        """
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.dof,):
+            raise InputError(f"q: expected shape ({self.dof},) for hand {self.hand}, found {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise InputError("q: non-finite value")
+        c = self.client
+        pos, quat = pb.multiplyTransforms(
+            q[:3].tolist(), _quat_from_rotvec(q[3:6]), *self._wrist_inertial, physicsClientId=c
+        )
+        pb.resetBasePositionAndOrientation(self.hand_id, pos, quat, physicsClientId=c)
+        joints = q[6:]
+        values = [[float(v)] for v in joints] + [[k * float(joints[m]) + off] for _, m, k, off in self._mimic]
+        pb.resetJointStatesMultiDof(self.hand_id, self._all_joints, values, physicsClientId=c)
+        self.q = q.copy()
+
+    def _contacts_raw(self, q):
+        if q is not None:
+            self.set_q(q)
+        pb.performCollisionDetection(physicsClientId=self.client)
+        return pb.getContactPoints(bodyA=self.hand_id, physicsClientId=self.client)
+
+    def is_free(self, q: np.ndarray) -> bool:
+        """Whether the hand at ``q`` penetrates nothing: table, object, obstacles, nor itself (every link)."""
+        return not any(cp[8] < 0.0 for cp in self._contacts_raw(q))
+
+    def link_name(self, index: int) -> str:
+        return self.base_name if index < 0 else self.link_names[index]
+
+    def hand_contacts(self, q: np.ndarray | None = None, max_distance_m: float = 0.0) -> list[Contact]:
+        """The hand's contacts at ``q`` (or at the current configuration) with distance <= ``max_distance_m``.
+
+        Self-collision pairs appear with ``other = "self:<link>"``.
+        """
+        out = []
+        for cp in self._contacts_raw(q):
+            if cp[8] > max_distance_m:
+                continue
+            other = (
+                f"self:{self.link_name(cp[4])}"
+                if cp[2] == self.hand_id
+                else self._names.get(cp[2], str(cp[2]))
+            )
+            out.append(Contact(self.link_name(cp[3]), other, tuple(cp[5]), tuple(cp[7]), float(cp[8])))
+        return out
+
+    def signed_distance(
+        self, q: np.ndarray, max_distance_m: float = 0.05, include_object: bool = False
+    ) -> float:
+        """Smallest signed distance [m] between the hand and the table and obstacles (and the object).
+
+        Negative in penetration; ``max_distance_m`` when nothing is closer than that.
+        """
+        self.set_q(q)
+        bodies = self._bodies if include_object else (self.table_id, *self.obstacle_ids)
+        best = max_distance_m
+        for b in bodies:
+            pts = pb.getClosestPoints(self.hand_id, b, max_distance_m, physicsClientId=self.client)
+            if pts:
+                best = min(best, min(p[8] for p in pts))
+        return float(best)
+
+    def rest_q(self) -> np.ndarray:
+        """The open hand (:func:`hand_rest_joints`) with the wrist at the world origin: (dof,)."""
+        return np.concatenate([np.zeros(6), hand_rest_joints(self.hand)])
+
+    # --------------------------------------------------------------------------------------------
+    def render(
+        self, q: np.ndarray | None = None, width: int = 640, height: int = 480, camera: dict | str = "side"
+    ) -> np.ndarray:
+        """An RGB picture (height, width, 3) uint8 by pybullet's TinyRenderer (no display needed).
+
+        Args:
+            q: hand configuration (default: the current one).
+            camera: ``side``, ``top`` or a dict as returned by :func:`default_camera`.
+        """
+        if q is not None:
+            self.set_q(q)
+        cam = default_camera(self.scene, camera) if isinstance(camera, str) else camera
+        c = self.client
+        view = pb.computeViewMatrix(
+            list(map(float, cam["eye"])),
+            list(map(float, cam["target"])),
+            list(map(float, cam["up"])),
+            physicsClientId=c,
+        )
+        proj = pb.computeProjectionMatrixFOV(cam["fov_deg"], width / height, 0.02, 5.0, physicsClientId=c)
+        img = pb.getCameraImage(
+            width,
+            height,
+            view,
+            proj,
+            renderer=pb.ER_TINY_RENDERER,
+            lightDirection=[0.4, -0.6, 1.0],
+            shadow=0,
+            physicsClientId=c,
+        )
+        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))
+        return rgba[:, :, :3].copy()
+
+    # --------------------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Disconnect the client (idempotent)."""
+        if getattr(self, "client", None) is not None and self.client >= 0:
+            try:
+                pb.disconnect(physicsClientId=self.client)
+            except pb.error:  # already disconnected
+                pass
+            self.client = -1
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):  # pragma: no cover - best effort
+        self.close()
+
+
+def object_height_m(name: str) -> float:
+    """Height (m) of an object's bounding box along its own z."""
+    meta = assets.object_metadata(name)
+    return float(meta["bounding_box_m"]["max"][2] - meta["bounding_box_m"]["min"][2])

@@ -1,0 +1,125 @@
+"""Scenes: every shipped scene loads; bad scenes raise InputError naming the file and the field."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+import assets
+from assets.errors import InputError
+from planning.scene import load_scene
+
+SCENES = [
+    "big_cup",
+    "bottle",
+    "chips",
+    "chips_between_cans",
+    "chips_flat",
+    "ham",
+    "ham_arc",
+    "jam",
+    "jam_hole",
+    "salt",
+    "small_cup",
+]
+STRATEGY = {
+    "bottle": "chips",
+    "big_cup": "small_cup",
+    "ham_arc": "ham",
+    "chips_between_cans": "chips",
+    "chips_flat": "chips",
+    "jam_hole": "jam",
+}
+
+
+def test_eleven_scenes_ship():
+    assert assets.scenes() == SCENES
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_scene_loads(name):
+    s = load_scene(name)
+    assert s.name == name and s.hand == "sah" and s.description
+    assert s.strategy == STRATEGY.get(name, name)
+    T = s.T_world_object
+    assert np.allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
+    # the object stands on (or lies on) the table: its lowest point is at z = 0
+    meta = assets.object_metadata(s.object.name)
+    bb = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+    corners = np.array(meta["bounding_box_m"]["min"]) + bb * (
+        np.array(meta["bounding_box_m"]["max"]) - meta["bounding_box_m"]["min"]
+    )
+    p_world = (T[:3, :3] @ corners.T).T + T[:3, 3]
+    assert abs(p_world[:, 2].min()) < 1e-9
+    # the wrist bounds surround the object
+    lo, hi = s.bounds_array
+    assert np.all(lo <= p_world.min(0)) and np.all(p_world.max(0) < hi)
+
+
+def test_cov_object_is_gtsam_order_rotation_first():
+    s = load_scene("ham")
+    cov = s.cov_object
+    assert cov.shape == (6, 6)
+    # the paper's Sigma_o = 3^2 I mm^2 on position, 2 deg std on rotation
+    assert np.allclose(np.diag(cov)[3:], (3e-3) ** 2, rtol=1e-12)
+    assert np.allclose(np.diag(cov)[:3], math.radians(2.0) ** 2, rtol=1e-12)
+    assert np.count_nonzero(cov - np.diag(np.diag(cov))) == 0
+
+
+def test_chips_flat_lies_along_x():
+    s = load_scene("chips_flat")
+    axis = s.T_world_object[:3, 2]
+    assert np.allclose(axis, [1, 0, 0], atol=1e-12)
+
+
+def _write(tmp_path, mutate):
+    d = yaml.safe_load(open(assets.scene_path("ham_arc")))
+    mutate(d)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+@pytest.mark.parametrize(
+    "mutate, field",
+    [
+        (lambda d: d["object"].update(name="teapot"), "object.name"),
+        (lambda d: d.pop("strategy"), "strategy"),
+        (lambda d: d["object"].pop("position_m"), "object.position_m"),
+        (lambda d: d["object"].update(position_m=[0, float("nan"), 0]), r"object.position_m\[1\]"),
+        (lambda d: d["object"].update(rpy_deg=[0, 0]), "object.rpy_deg"),
+        (lambda d: d.update(hand="robotiq"), "hand"),
+        (lambda d: d.update(strategy="teapot"), "strategy"),
+        (lambda d: d["obstacles"][1].update(size_m=[0.1, -0.02, 0.1]), r"obstacles\[1\].size_m\[1\]"),
+        (lambda d: d["obstacles"][0].update(type="cone"), r"obstacles\[0\].type"),
+        (lambda d: d["obstacles"][0].pop("size_m"), r"obstacles\[0\].size_m"),
+        (lambda d: d["table"].update(size_m="big"), "table.size_m"),
+        (lambda d: d["object"].update(position_std_mm=-3), "object.position_std_mm"),
+        (lambda d: d.update(colour="red"), "colour"),
+        (lambda d: d["wrist_bounds_m"].update(min=[1, 1, 1]), "wrist_bounds_m"),
+        (
+            lambda d: d["obstacles"].append({"type": "mesh", "file": "nope.obj", "position_m": [0, 0, 0]}),
+            r"obstacles\[2\].file",
+        ),
+    ],
+)
+def test_bad_scene_names_file_and_field(tmp_path, mutate, field):
+    path = _write(tmp_path, mutate)
+    with pytest.raises(InputError, match=rf"bad\.yaml: {field}"):
+        load_scene(path)
+
+
+def test_unknown_scene_name_lists_valid_ones():
+    with pytest.raises(InputError, match="unknown scene 'nope'.*ham_arc"):
+        load_scene("nope")
+
+
+def test_not_yaml(tmp_path):
+    p = tmp_path / "x.yaml"
+    p.write_text("name: [unclosed\n")
+    with pytest.raises(InputError, match="not valid YAML"):
+        load_scene(p)
+    p.write_text("- a list\n")
+    with pytest.raises(InputError, match="expected a mapping"):
+        load_scene(p)
