@@ -1,0 +1,604 @@
+"""Synthetic human demonstrations: what a 6-D wrist tracker and a dataglove would have recorded.
+
+We have neither sensor, so for each demonstrated object a final grasp of the human hand model is built
+following the paper's strategy (section VIII, Fig. 5-7), and a 20 Hz approach trajectory is played
+into it. Steps:
+
+1. **Grasp pose.** A least-squares fit of the wrist pose and the 20 joints puts the fingertip sphere
+   centres a few millimetres off chosen contact regions (a stand-off), keeps every finger and palm
+   sample out of the object, and stays near a natural wrist orientation and posture.
+2. **Closure.** Each contact finger closes its flexion joints (as GraspIt!'s autoGrasp: a touching link
+   stops its joint and the joints before it) until its fingertip sphere touches the surface; each
+   touching instant is found by bisection on the signed distance (Open3D ``RaycastingScene``).
+3. **Check.** At the last step each contact fingertip sphere is within :data:`CONTACT_TOL_M` of the
+   surface and no finger or palm sample penetrates more than :data:`PENETRATION_TOL_M`; the penetration
+   bound is checked at every step of the noise-free trajectory too. A violation raises
+   :class:`GenerationError`.
+4. **Trajectory.** A pre-grasp :data:`PREGRASP_DISTANCE_M` away along the approach direction with the
+   fingers open; minimum-jerk interpolation of the wrist (on SE(3)) and of the joints, the fingers
+   closing in the last part.
+5. **Sensor noise.** Temporally correlated (first-order Gauss-Markov) noise added to the noise-free
+   motion, see :data:`NOISE`. The file holds the noisy recording and, under separate keys, the
+   noise-free motion on which the contact check holds.
+
+Everything random goes through one ``numpy.random.Generator``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import open3d as o3d
+from scipy.optimize import least_squares
+
+import assets
+
+from . import lie
+from .demonstration import FINGERS, RATE_HZ, Demonstration, default_object_prior
+
+__all__ = [
+    "Strategy",
+    "GraspReport",
+    "GenerationError",
+    "STRATEGIES",
+    "DEMONSTRATED_OBJECTS",
+    "ObjectDistance",
+    "HandSamples",
+    "hand_samples",
+    "min_jerk",
+    "correlated_noise",
+    "generate",
+    "NOISE",
+    "FINGER_RADIUS_M",
+]
+
+log = logging.getLogger(__name__)
+
+#: Radius of each finger's sample spheres (and its fingertip sphere) [m].
+FINGER_RADIUS_M = {"thumb": 0.0105, "index": 0.009, "middle": 0.009, "ring": 0.0085, "little": 0.008}
+#: Half the palm thickness: radius of the palm sample spheres [m].
+PALM_RADIUS_M = 0.013
+CONTACT_TOL_M = 0.002
+PENETRATION_TOL_M = 0.002
+PREGRASP_DISTANCE_M = 0.15
+#: Sensor noise: per-axis standard deviations of stationary first-order Gauss-Markov processes.
+NOISE = {
+    "model": "first-order Gauss-Markov (AR(1)) per axis, stationary, correlation time correlation_time_s",
+    "tracker_position_sigma_m": 0.005,
+    "tracker_rotation_sigma_rad": float(np.deg2rad(2.0)),
+    "glove_sigma_rad": float(np.deg2rad(3.0)),
+    "correlation_time_s": 0.25,
+    "rotation_noise": "right perturbation R_true @ Exp(omega), omega per axis in the wrist frame",
+    "position_noise": "added to the wrist position in the object frame",
+    "contact_check": "on the noise-free motion (keys T_object_wrist_true, joints_true)",
+}
+_SAMPLES_PER_SEGMENT = 5
+
+
+class GenerationError(RuntimeError):
+    """The generated grasp violates the contact or penetration check (a bug in a strategy)."""
+
+
+def _hand():
+    from . import human_hand
+
+    return human_hand
+
+
+class ObjectDistance:
+    """Signed distance to an object's watertight mesh (negative inside), in the object frame.
+
+    Args:
+        name: object name (``assets.objects()``).
+    """
+
+    def __init__(self, name: str):
+        mesh = o3d.io.read_triangle_mesh(str(assets.object_mesh(name)))
+        self.name = name
+        self._scene = o3d.t.geometry.RaycastingScene()
+        self._scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+
+    def signed(self, p_object: np.ndarray) -> np.ndarray:
+        """Signed distances (...,) [m] of points ``p_object`` (..., 3)."""
+        p = np.asarray(p_object, dtype=np.float32)
+        d = self._scene.compute_signed_distance(o3d.core.Tensor(p.reshape(-1, 3))).numpy()
+        return d.astype(float).reshape(p.shape[:-1])
+
+    def closest(self, p_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest surface points (N, 3) and outward unit normals (N, 3) for points (N, 3)."""
+        p = np.asarray(p_object, dtype=np.float32).reshape(-1, 3)
+        ans = self._scene.compute_closest_points(o3d.core.Tensor(p))
+        c = ans["points"].numpy().astype(float)
+        n = ans["primitive_normals"].numpy().astype(float)
+        return c, n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class HandSamples:
+    """Sphere samples covering the human hand, found from the kinematics (no link names needed).
+
+    Attributes:
+        owner: (N,) finger index 0..4 (``FINGERS``) or 5 for the palm.
+        segment: (N,) 0..2 for the finger segment after each flexion joint, -1 for the palm.
+        radius: (N,) sphere radii [m].
+    """
+
+    owner: np.ndarray
+    segment: np.ndarray
+    radius: np.ndarray
+    flex_joints: dict = field(default_factory=dict)
+
+    def points(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sample centres (..., N, 3) and fingertip sphere centres (..., 5, 3) in the wrist frame."""
+        return _sample_points(joints)
+
+
+_LAYOUT: dict = {}
+
+
+def _layout():
+    """Finger chains from the FK: each link's finger and level (how many flexion joints move it)."""
+    if _LAYOUT:
+        return _LAYOUT
+    hand = _hand()
+    names = list(hand.JOINT_NAMES)
+    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
+    j0 = np.clip(np.zeros(len(names)), limits[:, 0], limits[:, 1]) + 0.1
+    j0 = np.minimum(j0, limits[:, 1])
+    base = hand.fk(j0)
+    flex = {}
+    for f in FINGERS:
+        idx = [i for i, n in enumerate(names) if n.startswith(f + "_")]
+        flex[f] = [i for i in idx if not names[i].endswith("_abd")]
+        if len(flex[f]) != 3:
+            raise GenerationError(f"expected 3 flexion joints for {f}, found {[names[i] for i in flex[f]]}")
+    chains = {f: {} for f in FINGERS}
+    for link, T in base.items():
+        moved = []
+        for i in range(len(names)):
+            j = j0.copy()
+            j[i] += 0.05
+            if np.abs(hand.fk(j)[link] - T).max() > 1e-9:
+                moved.append(i)
+        for f in FINGERS:
+            if moved and all(i in flex[f] or names[i].startswith(f + "_") for i in moved):
+                level = sum(i in flex[f] for i in moved)
+                if level >= 1:
+                    chains[f].setdefault(level, []).append(link)
+    for f in FINGERS:
+        if sorted(chains[f]) != [1, 2, 3]:
+            raise GenerationError(f"could not find the 3 segments of {f} in the hand's FK: {chains[f]}")
+        # the segment starts at the joint: the link of that level nearest to the wrist
+        chains[f] = [min(chains[f][lv], key=lambda n: np.linalg.norm(base[n][:3, 3])) for lv in (1, 2, 3)]
+    _LAYOUT.update(chains=chains, flex=flex)
+    return _LAYOUT
+
+
+def _sample_points(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    hand = _hand()
+    lay = _layout()
+    frames = hand.fk(joints)
+    tips = hand.fingertip_positions(joints)
+    s = np.linspace(0.0, 1.0, _SAMPLES_PER_SEGMENT)
+    pts, centres, bases = [], [], []
+    for k, f in enumerate(FINGERS):
+        o = [frames[n][..., :3, 3] for n in lay["chains"][f]]
+        d = tips[..., k, :] - o[2]
+        centre = tips[..., k, :] - FINGER_RADIUS_M[f] * d / np.linalg.norm(d, axis=-1, keepdims=True)
+        ends = [o[0], o[1], o[2], centre]
+        for a, b in zip(ends[:-1], ends[1:], strict=True):
+            pts.append(a[..., None, :] + s[:, None] * (b - a)[..., None, :])
+        centres.append(centre)
+        bases.append(o[0])
+    wrist = np.zeros_like(bases[0])
+    for b in bases[1:]:  # palm: lines from the wrist to the four finger bases
+        pts.append(wrist[..., None, :] + np.linspace(0.25, 0.9, 4)[:, None] * (b - wrist)[..., None, :])
+    return np.concatenate(pts, axis=-2), np.stack(centres, axis=-2)
+
+
+def hand_samples() -> HandSamples:
+    """The layout of the samples returned by ``HandSamples.points``."""
+    owner, segment, radius = [], [], []
+    for k, f in enumerate(FINGERS):
+        for seg in range(3):
+            owner += [k] * _SAMPLES_PER_SEGMENT
+            segment += [seg] * _SAMPLES_PER_SEGMENT
+            radius += [FINGER_RADIUS_M[f]] * _SAMPLES_PER_SEGMENT
+    owner += [5] * 16
+    segment += [-1] * 16
+    radius += [PALM_RADIUS_M] * 16
+    return HandSamples(np.array(owner), np.array(segment), np.array(radius), dict(_layout()["flex"]))
+
+
+def _to_object(T_object_wrist: np.ndarray, p_wrist: np.ndarray) -> np.ndarray:
+    """Points (..., N, 3) of the wrist frame into the object frame, for one pose (4, 4)."""
+    return p_wrist @ T_object_wrist[:3, :3].T + T_object_wrist[:3, 3]
+
+
+def min_jerk(s: np.ndarray) -> np.ndarray:
+    """Minimum-jerk profile 10 s^3 - 15 s^4 + 6 s^5 of ``s`` clipped to [0, 1]."""
+    s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def correlated_noise(rng: np.random.Generator, n: int, dim: int, sigma: float, dt_s: float, tau_s: float):
+    """Stationary first-order Gauss-Markov noise (n, dim) with per-axis standard deviation ``sigma``."""
+    a = np.exp(-dt_s / tau_s)
+    w = rng.standard_normal((n, dim))
+    x = np.empty((n, dim))
+    x[0] = sigma * w[0]
+    for t in range(1, n):
+        x[t] = a * x[t - 1] + sigma * np.sqrt(1.0 - a * a) * w[t]
+    return x
+
+
+def _frame(x_w, y_w) -> np.ndarray:
+    """R_object_wrist from the wrist's x (palm normal) and y (thumb side) axes in the object frame."""
+    x = np.asarray(x_w, float) / np.linalg.norm(x_w)
+    y = np.asarray(y_w, float) - np.dot(y_w, x) * x
+    y /= np.linalg.norm(y)
+    return np.column_stack([x, y, np.cross(x, y)])
+
+
+def _cyl(radius: float, phi_deg: float, z: float) -> tuple[float, float, float]:
+    phi = np.deg2rad(phi_deg)
+    return (radius * np.cos(phi), radius * np.sin(phi), z)
+
+
+@dataclass(frozen=True)
+class Strategy:
+    """A grasping strategy: where the fingers go and how the hand comes in.
+
+    Attributes:
+        object: object name.
+        grasp_type: ``"precision"`` or ``"power"``.
+        description: one line for the file header.
+        R_object_wrist: (3, 3) preferred final wrist orientation.
+        p_object_wrist: (3,) initial guess of the final wrist position [m].
+        targets: finger -> a point near the surface where its fingertip should land [m, object frame].
+        approach: (3,) direction from the grasp towards the pre-grasp (object frame).
+        palm_gap_m: for power grasps, the wanted distance of the palm samples' surface to the object.
+        standoff_m: fingertip stand-off of the fit before closing.
+        duration_s: length of the demonstration.
+        orientation_sigma_rad: how strongly the fit keeps the preferred orientation.
+    """
+
+    object: str
+    grasp_type: str
+    description: str
+    R_object_wrist: np.ndarray
+    p_object_wrist: np.ndarray
+    targets: dict
+    approach: np.ndarray
+    palm_gap_m: float | None = None
+    standoff_m: float = 0.006
+    duration_s: float = 3.0
+    orientation_sigma_rad: float = float(np.deg2rad(15.0))
+
+
+def _strategies() -> dict[str, Strategy]:
+    down = (0.0, 0.0, -1.0)
+    S = {}
+    # Ham can (10 x 5.5 x 8 cm): straight from above, palm down, fingers close to the tin; thumb on the
+    # +y face, index and little on the rounded vertical edges, middle and ring on the flat -y face.
+    S["ham"] = Strategy(
+        "ham",
+        "precision",
+        "straight from above, fingers close to the can: thumb on one long side, index and little on the "
+        "rounded corners, middle and ring on the opposite long side near the top edge",
+        _frame(down, (1.0, 0.0, 0.0)),
+        np.array([0.0, 0.055, 0.15]),
+        {
+            "thumb": (0.0, 0.03, 0.062),
+            "index": (0.045, -0.026, 0.062),
+            "middle": (0.012, -0.03, 0.06),
+            "ring": (-0.013, -0.03, 0.06),
+            "little": (-0.045, -0.026, 0.064),
+        },
+        np.array([0.0, 0.0, 1.0]),
+    )
+    # Jam jar (7 cm diameter): from above, fingertips around the lid; ring and little close together.
+    S["jam"] = Strategy(
+        "jam",
+        "precision",
+        "from above, fingertips around the lid: thumb opposite the four fingers, ring and little "
+        "close together",
+        _frame(down, (0.0, -1.0, 0.0)),
+        np.array([0.06, 0.0, 0.18]),
+        {
+            "thumb": _cyl(0.037, 5, 0.08),
+            "index": _cyl(0.037, 235, 0.08),
+            "middle": _cyl(0.037, 195, 0.08),
+            "ring": _cyl(0.037, 158, 0.08),
+            "little": _cyl(0.037, 136, 0.08),
+        },
+        np.array([0.0, 0.0, 1.0]),
+    )
+    # Small cup (8 cm diameter, handle at +x): by its body from above, away from the handle.
+    S["small_cup"] = Strategy(
+        "small_cup",
+        "precision",
+        "by its body from above, away from the handle: thumb on the +y side, fingers around the -y side",
+        _frame(down, (1.0, 0.0, 0.0)),
+        np.array([0.0, 0.06, 0.17]),
+        {
+            "thumb": _cyl(0.042, 95, 0.075),
+            "index": _cyl(0.042, 305, 0.075),
+            "middle": _cyl(0.042, 265, 0.075),
+            "ring": _cyl(0.042, 228, 0.075),
+            "little": _cyl(0.042, 208, 0.075),
+        },
+        np.array([0.0, 0.0, 1.0]),
+    )
+    # Chips can (7.5 cm diameter, 23 cm high): wrapped from the side, palm on the can, thumb up.
+    side = np.array([-1.0, 0.0, 0.0])
+    S["chips"] = Strategy(
+        "chips",
+        "power",
+        "wrapped from the side: palm on the can, fingers around it, thumb wrapped the other way",
+        _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+        np.array([-0.07, 0.02, 0.10]),
+        {
+            "thumb": _cyl(0.039, 110, 0.16),
+            "index": _cyl(0.039, 345, 0.14),
+            "middle": _cyl(0.039, 5, 0.12),
+            "ring": _cyl(0.039, 330, 0.10),
+            "little": _cyl(0.039, 322, 0.08),
+        },
+        side,
+        palm_gap_m=0.002,
+    )
+    # Salt box (9 x 6 x 14 cm): power grasp from the side, palm on the narrow -x face, fingers over the
+    # -y face, thumb on the +y face.
+    S["salt"] = Strategy(
+        "salt",
+        "power",
+        "from the side: palm on the narrow face, fingers wrapped onto one wide face, thumb on the other",
+        _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
+        np.array([-0.08, 0.02, 0.08]),
+        {
+            "thumb": (-0.02, 0.032, 0.11),
+            "index": (-0.01, -0.032, 0.105),
+            "middle": (-0.005, -0.032, 0.085),
+            "ring": (-0.025, -0.032, 0.065),
+            "little": (-0.03, -0.032, 0.048),
+        },
+        side,
+        palm_gap_m=0.002,
+    )
+    return S
+
+
+STRATEGIES: dict[str, Strategy] = _strategies()
+DEMONSTRATED_OBJECTS = tuple(STRATEGIES)
+
+
+@dataclass(frozen=True)
+class GraspReport:
+    """What the contact check measured on the noise-free final grasp.
+
+    Attributes:
+        object: object name.
+        tip_gap_mm: (5,) signed distance of each fingertip sphere to the surface [mm] (``FINGERS`` order).
+        max_penetration_mm: deepest penetration of any finger or palm sample at the last step [mm].
+        max_penetration_trajectory_mm: the same over every step of the noise-free trajectory [mm].
+        contact_normals: (5, 3) outward surface normals at the fingertips (object frame).
+        normal_angle_deg: (4, 4) angles between the contact normals of index, middle, ring, little.
+        closest_pair: the two opposing fingers with the most similar contact normals.
+    """
+
+    object: str
+    tip_gap_mm: np.ndarray
+    max_penetration_mm: float
+    max_penetration_trajectory_mm: float
+    contact_normals: np.ndarray
+    normal_angle_deg: np.ndarray
+    closest_pair: tuple[str, str]
+
+
+def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.ndarray):
+    pts, centres = _sample_points(J)
+    sd = dist.signed(_to_object(T, pts)) - radius
+    rt = np.array([FINGER_RADIUS_M[f] for f in FINGERS])
+    gaps = dist.signed(_to_object(T, centres)) - rt
+    return sd, gaps
+
+
+def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares wrist pose and joints with the fingertips at a stand-off from the targets."""
+    hand = _hand()
+    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
+    names = list(hand.JOINT_NAMES)
+    fingers = [f for f in FINGERS if f in strategy.targets]
+    c, n = dist.closest(np.array([strategy.targets[f] for f in fingers]))
+    rt = np.array([FINGER_RADIUS_M[f] for f in fingers])
+    goal = c + n * (rt + strategy.standoff_m)[:, None]
+    kk = [FINGERS.index(f) for f in fingers]
+    pref = np.clip(
+        np.array([0.0 if nm.endswith("_abd") else 0.6 for nm in names]), limits[:, 0], limits[:, 1]
+    )
+    R0 = strategy.R_object_wrist
+
+    def unpack(x):
+        return lie.make_pose(R0 @ lie.so3_exp(x[:3]), x[3:6]), x[6:]
+
+    def residuals(x):
+        T, J = unpack(x)
+        pts, centres = _sample_points(J)
+        sd = dist.signed(_to_object(T, pts)) - samples.radius
+        r = [
+            ((_to_object(T, centres[kk]) - goal) / 0.002).ravel(),
+            np.maximum(0.0, 0.002 - sd) / 0.0005,
+            x[:3] / strategy.orientation_sigma_rad,
+            (J - pref) / 1.5,
+        ]
+        if strategy.palm_gap_m is not None:
+            palm = sd[samples.owner == 5]
+            r.append(np.atleast_1d((palm.min() - strategy.palm_gap_m) / 0.003))
+        return np.concatenate(r)
+
+    x0 = np.concatenate([np.zeros(3), strategy.p_object_wrist, pref])
+    lo = np.concatenate([np.full(6, -np.inf), limits[:, 0]])
+    hi = np.concatenate([np.full(6, np.inf), limits[:, 1]])
+    sol = least_squares(
+        residuals, x0, bounds=(lo, hi), x_scale=np.r_[[0.2] * 3, [0.02] * 3, [0.3] * 20], max_nfev=400
+    )
+    log.debug("%s: fit cost %.3g after %d evaluations", strategy.object, sol.cost, sol.nfev)
+    return unpack(sol.x)
+
+
+def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, samples: HandSamples):
+    """Close finger ``k``'s flexion joints until its fingertip touches (autoGrasp with link stops)."""
+    hand = _hand()
+    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
+    idx = np.array(samples.flex_joints[FINGERS[k]])
+    rate = np.array([1.0, 1.0, 0.8])
+    mine = samples.owner == k
+    active = np.ones(3, bool)
+    J = J.copy()
+
+    def at(s):
+        Js = J.copy()
+        Js[idx[active]] = np.clip(
+            J[idx[active]] + s * rate[active], limits[idx[active], 0], limits[idx[active], 1]
+        )
+        pts, _ = _sample_points(Js)
+        sd = dist.signed(_to_object(T, pts[mine])) - samples.radius[mine]
+        return Js, sd
+
+    for _ in range(3):
+        if not active.any():
+            break
+        _, sd0 = at(0.0)
+        if sd0.min() <= 0.0:  # the fit left the finger in the object: open it until it just touches
+            a, b = -1.5, 0.0
+            if at(a)[1].min() <= 0.0:
+                break
+            for _ in range(30):
+                m = 0.5 * (a + b)
+                a, b = (m, b) if at(m)[1].min() > 0.0 else (a, m)
+            J, sd = at(a)
+            seg = samples.segment[mine][sd.argmin()]
+        else:
+            grid = np.arange(0.01, 2.0, 0.01)
+            hit = None
+            for s in grid:
+                if at(s)[1].min() <= 0.0:
+                    hit = s
+                    break
+            if hit is None:
+                J = at(grid[-1])[0]
+                break
+            a, b = hit - 0.01, hit
+            for _ in range(30):
+                m = 0.5 * (a + b)
+                a, b = (m, b) if at(m)[1].min() > 0.0 else (a, m)
+            J, sd = at(a)
+            seg = samples.segment[mine][sd.argmin()]
+        active[: seg + 1] = False
+    return J
+
+
+def _trajectory(strategy: Strategy, T_final: np.ndarray, J_final: np.ndarray, samples: HandSamples):
+    hand = _hand()
+    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
+    n = int(round(strategy.duration_s * RATE_HZ)) + 1
+    t = np.arange(n) / RATE_HZ
+    D = t[-1]
+    T_pre = T_final.copy()
+    T_pre[:3, 3] += PREGRASP_DISTANCE_M * strategy.approach / np.linalg.norm(strategy.approach)
+    J_open = J_final.copy()
+    flex = np.concatenate([samples.flex_joints[f] for f in FINGERS])
+    J_open[flex] = np.clip(np.minimum(J_final[flex], 0.15), limits[flex, 0], limits[flex, 1])
+    sw = min_jerk(t / (0.75 * D))
+    sj = min_jerk((t - 0.45 * D) / (0.55 * D))
+    xi = lie.local(T_pre, T_final)
+    T = lie.retract(T_pre, sw[:, None] * xi)
+    J = J_open + sj[:, None] * (J_final - J_open)
+    return t, T, J
+
+
+def generate(
+    name: str, rng: np.random.Generator, seed: int | None = None
+) -> tuple[Demonstration, GraspReport]:
+    """Generate the demonstration of one object.
+
+    Args:
+        name: one of :data:`DEMONSTRATED_OBJECTS`.
+        rng: the source of the sensor noise.
+        seed: recorded in the header (the seed ``rng`` was made from), if known.
+
+    Returns:
+        The demonstration (noisy recording plus noise-free motion) and the contact check's figures.
+
+    Raises:
+        InputError: unknown object.
+        GenerationError: the final grasp fails the contact or penetration check.
+    """
+    if name not in STRATEGIES:
+        raise assets.InputError(
+            f"no demonstration strategy for {name!r}; valid names: {', '.join(STRATEGIES)}"
+        )
+    st = STRATEGIES[name]
+    dist = ObjectDistance(name)
+    samples = hand_samples()
+    T, J = _fit(st, dist, samples)
+    for k, f in enumerate(FINGERS):
+        if f in st.targets:
+            J = _close_finger(k, T, J, dist, samples)
+    sd, gaps = _penetration(dist, T, J, samples.radius)
+    contact = [k for k, f in enumerate(FINGERS) if f in st.targets]
+    if np.abs(gaps[contact]).max() > CONTACT_TOL_M or -sd.min() > PENETRATION_TOL_M:
+        raise GenerationError(
+            f"{name}: fingertip gaps {np.round(gaps * 1e3, 2)} mm, max penetration {-sd.min() * 1e3:.2f} mm "
+            f"(tolerances {CONTACT_TOL_M * 1e3} / {PENETRATION_TOL_M * 1e3} mm)"
+        )
+    t, T_true, J_true = _trajectory(st, T, J, samples)
+    pen_traj = max(-_penetration(dist, T_true[i], J_true[i], samples.radius)[0].min() for i in range(len(t)))
+    if pen_traj > PENETRATION_TOL_M:
+        raise GenerationError(f"{name}: the approach penetrates the object by {pen_traj * 1e3:.2f} mm")
+    _, centres = _sample_points(J)
+    _, normals = dist.closest(_to_object(T, centres))
+    opp = normals[1:]
+    ang = np.degrees(np.arccos(np.clip(opp @ opp.T, -1.0, 1.0)))
+    off = ang + np.eye(4) * 1e9
+    i, j = np.unravel_index(off.argmin(), off.shape)
+    report = GraspReport(
+        name,
+        gaps * 1e3,
+        float(-sd.min() * 1e3),
+        float(pen_traj * 1e3),
+        normals,
+        ang,
+        (FINGERS[1 + min(i, j)], FINGERS[1 + max(i, j)]),
+    )
+    dt = 1.0 / RATE_HZ
+    tau = NOISE["correlation_time_s"]
+    n = len(t)
+    e_p = correlated_noise(rng, n, 3, NOISE["tracker_position_sigma_m"], dt, tau)
+    e_r = correlated_noise(rng, n, 3, NOISE["tracker_rotation_sigma_rad"], dt, tau)
+    e_j = correlated_noise(rng, n, J.size, NOISE["glove_sigma_rad"], dt, tau)
+    T_rec = lie.make_pose(T_true[:, :3, :3] @ lie.so3_exp(e_r), T_true[:, :3, 3] + e_p)
+    mu, cov = default_object_prior()
+    demo = Demonstration(
+        T_object_wrist=T_rec,
+        joints=J_true + e_j,
+        t_s=t,
+        object=name,
+        grasp_type=st.grasp_type,
+        T_world_object_mean=mu,
+        cov_object=cov,
+        rate_hz=RATE_HZ,
+        T_object_wrist_true=T_true,
+        joints_true=J_true,
+        contact_fingers=tuple(FINGERS[k] for k in contact),
+        strategy=st.description,
+        noise=dict(NOISE),
+        seed=seed,
+    )
+    log.info(
+        "%s: tips %s mm, penetration %.2f mm", name, np.round(report.tip_gap_mm, 2), report.max_penetration_mm
+    )
+    return demo, report
