@@ -76,8 +76,18 @@ def _urdf_joint_table(urdf: Path):
 
 
 def hand_rest_joints(hand: str) -> np.ndarray:
-    """The rest (open) pose of a hand's joints in :func:`hand_joint_names` order: 0 clipped into the
-    URDF limits (SAH: the middle flexions sit at their 4 deg lower limit) [rad]."""
+    """The rest (open) pose of a hand's joints in :func:`hand_joint_names` order [rad].
+
+    SAH: ``retarget.sah.rest_joints()`` (thumb opposed, fingers slightly flexed, free of self-collision);
+    other hands: 0 clipped into the URDF limits.
+    """
+    if hand == "sah":
+        try:
+            from retarget.sah import rest_joints
+        except ImportError:  # pragma: no cover - until retarget.sah exists
+            pass
+        else:
+            return np.asarray(rest_joints(), dtype=float)
     _, _, limits = _urdf_joint_table(assets.hand_urdf(hand))
     out = []
     for name in hand_joint_names(hand):
@@ -126,12 +136,12 @@ def default_camera(scene: Scene, view: str = "side") -> dict:
     target = (scene.T_world_object @ np.append(centre_object, 1.0))[:3]
     target[2] = max(target[2], 0.06)
     if view == "top":
-        return {"eye": target + [0.0, -0.02, 0.9], "target": target, "up": [0.0, 1.0, 0.0], "fov_deg": 45.0}
+        return {"eye": target + [0.0, -0.02, 1.1], "target": target, "up": [0.0, 1.0, 0.0], "fov_deg": 45.0}
     if view != "side":
         raise InputError(f"unknown camera view {view!r}; valid: side, top")
-    d, az, el = 0.95, np.radians(-35.0), np.radians(30.0)
+    d, az, el = 1.05, np.radians(-35.0), np.radians(30.0)
     eye = target + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    return {"eye": eye, "target": target + [0, 0, 0.08], "up": [0.0, 0.0, 1.0], "fov_deg": 45.0}
+    return {"eye": eye, "target": target + [0, 0, 0.12], "up": [0.0, 0.0, 1.0], "fov_deg": 45.0}
 
 
 class World:

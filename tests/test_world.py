@@ -1,0 +1,219 @@
+"""The pybullet world: hand placement, collisions with the table/object/obstacles/itself, distances,
+pictures, Q.json files and the two CLI subcommands."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pybullet as pb
+import pytest
+
+from assets.errors import InputError
+from planning.qfile import load_q, q_from_dict, save_q
+from planning.world import World
+from retarget import sah
+from retarget.lie import pose_from_q
+
+FK_TOL_M = 1e-6  # pybullet's link frames vs retarget.sah FK
+AABB_MARGIN_M = 0.006  # pybullet pads link AABBs by its collision margin (~5 mm measured)
+SHIFT_TOL_M = 1e-4  # the table is a plane: lowering the hand by dz lowers the distance by dz
+
+
+def q_down(xyz, joints=None):
+    """The SAH pointing down (wrist z towards -z world) with its wrist at xyz."""
+    q = np.zeros(19)
+    q[:3] = xyz
+    q[3:6] = [np.pi, 0, 0]
+    q[6:] = sah.rest_joints() if joints is None else joints
+    return q
+
+
+@pytest.fixture(scope="module")
+def ham_arc():
+    with World("ham_arc") as w:
+        yield w
+
+
+def test_set_q_places_links_as_the_kinematics_says(ham_arc):
+    w = ham_arc
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for _ in range(5):
+        q = np.concatenate([rng.uniform(-0.3, 0.3, 3), rng.normal(size=3), rng.uniform(*sah.JOINT_LIMITS.T)])
+        w.set_q(q)
+        T_world_link = pose_from_q(q) @ np.stack([sah.fk(q[6:])[t] for t in sah.TIP_LINKS])
+        for k, tip in enumerate(sah.TIP_LINKS):
+            state = pb.getLinkState(
+                w.hand_id, w.link_names.index(tip), computeForwardKinematics=True, physicsClientId=w.client
+            )
+            worst = max(worst, np.abs(np.array(state[4]) - T_world_link[k, :3, 3]).max())
+        # the distal joints copy the middle ones
+        for f in sah.FINGERS:
+            dist = pb.getJointState(
+                w.hand_id,
+                w.link_names.index(f"{f}_distal")
+                if f"{f}_distal" in w.link_names
+                else _joint_index(w, f"{f}_dist"),
+                physicsClientId=w.client,
+            )[0]
+            assert dist == pytest.approx(q[6 + sah.JOINT_NAMES.index(f"{f}_mid")], abs=1e-12)
+    assert worst < FK_TOL_M
+
+
+def _joint_index(w, name):
+    for i in range(pb.getNumJoints(w.hand_id, physicsClientId=w.client)):
+        if pb.getJointInfo(w.hand_id, i, physicsClientId=w.client)[1].decode() == name:
+            return i
+    raise KeyError(name)
+
+
+def test_far_away_is_free_and_through_the_object_is_not(ham_arc):
+    w = ham_arc
+    far = q_down([0.0, 0.0, 0.8])
+    assert w.is_free(far)
+    assert w.hand_contacts(far) == []
+    through = q_down([0.0, 0.0, 0.12])  # fingers reach ~0.2 m below the wrist: into the can
+    assert not w.is_free(through)
+    others = {c.other for c in w.hand_contacts(through)}
+    assert "ham" in others
+    assert all(c.distance_m <= 0 for c in w.hand_contacts(through))
+
+
+def test_table_contact(ham_arc):
+    w = ham_arc
+    q = q_down([0.3, 0.2, 0.3])  # beside the obstacles, within 5 cm of the table
+    d = w.signed_distance(q)
+    assert 0 < d < 0.05
+    q[2] -= d + 0.004  # the lowest point 4 mm below the table top
+    contacts = w.hand_contacts(q)
+    assert not w.is_free(q)
+    assert {c.other for c in contacts} == {"table"}
+    assert len(contacts) >= 1 and min(c.distance_m for c in contacts) == pytest.approx(
+        -0.004, abs=SHIFT_TOL_M
+    )
+    for c in contacts:  # the reported points are on the hand, at or below the table top
+        assert c.point_world[2] < 1e-3 and c.normal_world[2] > 0.99
+
+
+def test_obstacle_contact(ham_arc):
+    w = ham_arc
+    q = q_down([0.0, 0.0775, 0.3])  # above the left wall, fingers into it
+    q[2] = 0.16 + 0.18
+    assert not w.is_free(q)
+    assert "wall_left" in {c.other for c in w.hand_contacts(q)}
+
+
+def test_rest_pose_free_of_self_collision_and_converging_fingers_collide(ham_arc):
+    w = ham_arc
+    assert w.is_free(q_down([0.0, 0.0, 1.0]))
+    # index and middle abducted 15 deg towards each other: the fingers cross, far from everything else
+    j = sah.rest_joints()
+    j[sah.JOINT_NAMES.index("index_abd")] = np.deg2rad(-15)
+    j[sah.JOINT_NAMES.index("middle_abd")] = np.deg2rad(15)
+    q = q_down([0.0, 0.0, 1.0], j)
+    assert not w.is_free(q)
+    pairs = {(c.link.split("_")[0], c.other) for c in w.hand_contacts(q)}
+    assert pairs and all(other.startswith("self:") for _, other in pairs)
+    assert ("index", "self:middle_middle") in pairs or ("index", "self:middle_distal") in pairs
+
+
+def test_signed_distance_sign_and_value(ham_arc):
+    w = ham_arc
+    assert w.signed_distance(q_down([0.3, 0.2, 1.0])) == pytest.approx(0.05)
+    # clearance of the lowest point of the hand (pointing down) above the table
+    q = q_down([0.3, 0.2, 1.0])
+    w.set_q(q)
+    low = min(pb.getAABB(w.hand_id, i, physicsClientId=w.client)[0][2] for i in range(-1, len(w.link_names)))
+    q[2] -= low - 0.02
+    d0 = w.signed_distance(q)
+    assert 0 < d0 and abs(d0 - 0.02) < AABB_MARGIN_M
+    for dz in (0.005, 0.015, 0.03):
+        q1 = q.copy()
+        q1[2] -= dz
+        assert abs(w.signed_distance(q1) - (d0 - dz)) < SHIFT_TOL_M
+    assert w.signed_distance(q) > 0 and w.is_free(q)
+    # the object counts only when asked
+    through = q_down([0.0, 0.0, 0.12])
+    assert w.signed_distance(through, include_object=True) < 0
+
+
+def test_set_q_validates(ham_arc):
+    with pytest.raises(InputError, match=r"q: expected shape \(19,\)"):
+        ham_arc.set_q(np.zeros(18))
+    with pytest.raises(InputError, match="non-finite"):
+        ham_arc.set_q(np.full(19, np.nan))
+
+
+def test_render_returns_an_image_showing_the_scene(ham_arc):
+    img = ham_arc.render(q_down([0.0, 0.0, 0.45]), width=160, height=120)
+    assert img.shape == (120, 160, 3) and img.dtype == np.uint8
+    assert img.std() > 10  # not a blank picture
+    top = ham_arc.render(width=160, height=120, camera="top")
+    assert top.shape == (120, 160, 3)
+
+
+@pytest.mark.parametrize("scene", ["jam_hole", "chips_between_cans", "chips_flat"])
+def test_obstacle_scenes_build_and_far_hand_is_free(scene):
+    with World(scene) as w:
+        assert w.is_free(q_down([0.0, 0.0, 1.0]))
+        assert len(w.obstacle_ids) == {"jam_hole": 1, "chips_between_cans": 2, "chips_flat": 0}[scene]
+        # the hand pushed down through the target's position hits something
+        assert not w.is_free(q_down([0.0, 0.0, 0.15]))
+
+
+def test_jam_hole_block_is_solid_around_the_hole():
+    with World("jam_hole") as w:
+        # a finger-sized probe: the hand lowered at 10 cm from the jar's axis hits the block
+        hits = {c.other for c in w.hand_contacts(q_down([0.0, 0.1, 0.19]))}
+        assert "block_with_hole" in hits
+
+
+def test_qfile_round_trip_and_errors(tmp_path):
+    q = q_down([0.1, -0.2, 0.3])
+    for named in (False, True):
+        p = save_q(tmp_path / f"q{named}.json", q, named=named)
+        assert np.abs(load_q(p) - q).max() < 1e-12
+    d = {"wrist_position_m": [0, 0, 0.3], "wrist_rotvec_rad": [0, 0, 0], "joints_deg": {"index_prox": 30}}
+    q2 = q_from_dict(d)
+    expected = sah.rest_joints()
+    expected[sah.JOINT_NAMES.index("index_prox")] = np.deg2rad(30)
+    assert np.allclose(q2[6:], expected)
+    with pytest.raises(InputError, match="joints_deg.pinky_prox: unknown joint; valid: thumb_base"):
+        q_from_dict({**d, "joints_deg": {"pinky_prox": 3}})
+    with pytest.raises(InputError, match=r"q: expected a list of 19 numbers"):
+        q_from_dict({"q": [0] * 18})
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    with pytest.raises(InputError, match="bad.json: not valid JSON"):
+        load_q(bad)
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "planning.cli", *args], capture_output=True, text=True)
+
+
+def test_cli_render_writes_a_png(tmp_path):
+    out = tmp_path / "ham.png"
+    res = run_cli(
+        "render", "--scene", "ham", "--view", "both", "--width", "160", "--height", "120", "-o", str(out)
+    )
+    assert res.returncode == 0, res.stderr
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "hand free" in res.stdout
+    qf = tmp_path / "q.json"
+    qf.write_text(json.dumps({"q": [0.0] * 18}))
+    res = run_cli("render", "--scene", "ham", "--q", str(qf), "-o", str(tmp_path / "x.png"))
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if not ln.startswith("pybullet build time")]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "19 numbers" in lines[0]
+
+
+def test_cli_assets_lists_everything():
+    res = run_cli("assets")
+    assert res.returncode == 0, res.stderr
+    assert "objects (7):" in res.stdout and "scenes (11):" in res.stdout
+    assert "sah" in res.stdout and " 13 joints" in res.stdout
+    for name in ("ham_arc", "chips_between_cans", "chips_flat", "jam_hole", "big_cup", "bottle"):
+        assert name in res.stdout
