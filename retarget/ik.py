@@ -1,0 +1,278 @@
+"""Robust per-finger inverse kinematics of the SAH (the paper's section IV, footnote 1).
+
+Each SAH finger is an abduction joint (axis -x of the finger's knuckle frame, positive towards the
+thumb side) and three flexions about the knuckle's y axis at 0, L1 and L1 + L2 along its z axis, the
+last one coupled 1:1 to the middle one. In the knuckle frame at zero abduction a fingertip is at
+
+    p = (X, Z sin a, Z cos a),   X + iZ = i (L1 e^{-i t1} + L2 e^{-i (t1 + t2)} + L3 e^{-i (t1 + 2 t2)})
+
+so the distance ``r = |p|`` to the knuckle depends on the middle angle t2 alone:
+``r^2 = A + B cos t2 + C (2 cos^2 t2 - 1)``, a quadratic in ``cos t2`` that is monotone on the joint
+range. The solver is closed-form: abduction from the direction of p in the y-z plane, t2 from r, t1
+from the angle of (X, Z). Robustness as the paper's footnote: a target farther (or nearer) than the
+finger can reach is moved along the ray from the knuckle onto the reachable distance, and angles
+outside their limits are cut off; when anything was cut, projected Levenberg-Marquardt, started from the
+cut solution and from a small grid of joint values, moves the tip to the reachable point nearest the
+original target (the workspace is not convex; the grid makes the global nearest point likely).
+
+The thumb's base rotation (opposition) is not solved: it is taken from the seed (default: the rest
+pose's 90 deg) and IK solves abduction, proximal and middle flexion in the knuckle frame it gives.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import numpy as np
+
+from assets.errors import InputError
+
+from . import sah
+from .lie import skew
+
+__all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_fk_local"]
+
+_LM_ITERATIONS = 12
+_GRID = (3, 3, 2)  # extra LM starts per clipped target: abduction x proximal x middle values in the limits
+
+
+@dataclass(frozen=True)
+class FingerGeometry:
+    """What the IK needs of one finger, read from the URDF.
+
+    Attributes:
+        finger: the finger name.
+        lengths_m: (3,) L1, L2, L3: knuckle -> mid joint -> distal joint -> tip [m].
+        limits: (3, 2) [rad] of abduction, proximal and middle flexion.
+        T_parent_knuckle0: (4, 4) the knuckle frame at zero abduction in the abduction joint's parent
+            (the wrist for index/middle/ring, the thumb module for the thumb).
+        T_wrist_module_origin: (4, 4) the thumb base joint frame at zero (thumb only, else identity).
+        module_axis: (3,) the thumb base axis (thumb only, else zeros).
+        reach_m: (2,) smallest and largest knuckle-to-tip distance over the middle-joint range [m].
+    """
+
+    finger: str
+    lengths_m: np.ndarray
+    limits: np.ndarray
+    T_parent_knuckle0: np.ndarray
+    T_wrist_module_origin: np.ndarray
+    module_axis: np.ndarray
+    reach_m: tuple[float, float] = (0.0, np.inf)
+
+
+@lru_cache(maxsize=4)
+def finger_geometry(finger: str) -> FingerGeometry:
+    """The :class:`FingerGeometry` of an SAH finger (cached).
+
+    Raises:
+        InputError: unknown finger name.
+    """
+    if finger not in sah.FINGERS:
+        raise InputError(f"unknown SAH finger {finger!r}; valid names: {', '.join(sah.FINGERS)}")
+    joints = {j.name: j for j in sah.model().joints}
+    lengths = []
+    for name in (f"{finger}_mid", f"{finger}_dist", f"{finger}_tip_joint"):
+        t = joints[name].T_parent_joint
+        if np.abs(t[:3, :3] - np.eye(3)).max() > 1e-12 or np.abs(t[:2, 3]).max() > 1e-12:
+            raise RuntimeError(f"sah.urdf: joint {name} is not a pure offset along z; the IK assumes it")
+        lengths.append(t[2, 3])
+    idx = [sah.JOINT_NAMES.index(f"{finger}_{s}") for s in ("abd", "prox", "mid")]
+    T_origin, axis = np.eye(4), np.zeros(3)
+    if finger == "thumb":
+        T_origin, axis = joints["thumb_base"].T_parent_joint, joints["thumb_base"].axis
+    g = FingerGeometry(
+        finger,
+        np.array(lengths),
+        sah.JOINT_LIMITS[idx].copy(),
+        joints[f"{finger}_abd"].T_parent_joint,
+        T_origin,
+        axis,
+    )
+    r = [float(np.linalg.norm(finger_fk_local(g, np.array([[0.0, 0.0, t]]))[0])) for t in g.limits[2]]
+    return replace(g, reach_m=(min(r), max(r)))
+
+
+def _T_wrist_knuckle0(g: FingerGeometry, thumb_base: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) knuckle frame at zero abduction in the wrist frame."""
+    if g.finger != "thumb":
+        return np.broadcast_to(g.T_parent_knuckle0, thumb_base.shape + (4, 4))
+    K = skew(g.module_axis)
+    th = thumb_base[:, None, None]
+    R = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
+    T_rot = np.zeros(thumb_base.shape + (4, 4))
+    T_rot[:, :3, :3] = R
+    T_rot[:, 3, 3] = 1.0
+    return g.T_wrist_module_origin @ T_rot @ g.T_parent_knuckle0
+
+
+def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tip in the knuckle frame at zero abduction and its Jacobian.
+
+    Args:
+        g: the finger.
+        v: (N, 3) abduction, proximal, middle [rad] (distal = middle).
+
+    Returns:
+        p (N, 3) [m] and J (N, 3, 3) = dp / dv.
+    """
+    L1, L2, L3 = g.lengths_m
+    a, t1, t2 = v[:, 0], v[:, 1], v[:, 2]
+    s1, c1 = np.sin(t1), np.cos(t1)
+    s12, c12 = np.sin(t1 + t2), np.cos(t1 + t2)
+    s122, c122 = np.sin(t1 + 2 * t2), np.cos(t1 + 2 * t2)
+    X = L1 * s1 + L2 * s12 + L3 * s122
+    Z = L1 * c1 + L2 * c12 + L3 * c122
+    dX2 = L2 * c12 + 2 * L3 * c122
+    dZ2 = -L2 * s12 - 2 * L3 * s122
+    sa, ca = np.sin(a), np.cos(a)
+    p = np.stack([X, Z * sa, Z * ca], axis=-1)
+    J = np.empty(v.shape[:1] + (3, 3))
+    J[:, 0] = np.stack([np.zeros_like(a), Z, dX2], axis=-1)
+    J[:, 1] = np.stack([Z * ca, -X * sa, dZ2 * sa], axis=-1)
+    J[:, 2] = np.stack([-Z * sa, -X * ca, dZ2 * ca], axis=-1)
+    return p, J
+
+
+def _closed_form(g: FingerGeometry, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Clipped closed-form solution (N, 3) and a mask of the rows where something was clipped."""
+    L1, L2, L3 = g.lengths_m
+    lo, hi = g.limits[:, 0], g.limits[:, 1]
+    r_min, r_max = g.reach_m
+    r = np.linalg.norm(p, axis=-1)
+    r_c = np.clip(r, r_min, r_max)
+    moved = np.abs(r_c - r) > 1e-12
+    safe = np.where(r > 1e-12, r, 1.0)
+    p = np.where(moved[:, None], p * (r_c / safe)[:, None], p)
+    p = np.where((r <= 1e-12)[:, None], np.array([0.0, 0.0, r_min]), p)
+    # abduction: the branch with Z > 0 or Z < 0 whose angle is smaller
+    rho = np.hypot(p[:, 1], p[:, 2])
+    a_pos = np.arctan2(p[:, 1], p[:, 2])
+    a_neg = np.arctan2(-p[:, 1], -p[:, 2])
+    use_pos = np.abs(a_pos) <= np.abs(a_neg)
+    a = np.where(use_pos, a_pos, a_neg)
+    Z = np.where(use_pos, rho, -rho)
+    X = p[:, 0]
+    # middle angle from the distance: 2C c^2 + B c + (A - C - r^2) = 0
+    A = L1 * L1 + L2 * L2 + L3 * L3
+    B = 2 * (L1 * L2 + L2 * L3)
+    C = 2 * L1 * L3
+    disc = np.maximum(B * B - 8 * C * (A - C - r_c * r_c), 0.0)
+    c = (-B + np.sqrt(disc)) / (4 * C)
+    t2 = np.arccos(np.clip(c, -1.0, 1.0))
+    phi = np.arctan2(L2 * np.sin(t2) + L3 * np.sin(2 * t2), L1 + L2 * np.cos(t2) + L3 * np.cos(2 * t2))
+    t1 = np.arctan2(X, Z) - phi
+    t1 = (t1 + np.pi) % (2 * np.pi) - np.pi
+    v = np.stack([a, t1, t2], axis=-1)
+    v_c = np.clip(v, lo, hi)
+    clipped = moved | np.any(np.abs(v_c - v) > 1e-12, axis=-1)
+    return v_c, clipped
+
+
+def _refine(g: FingerGeometry, v: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Projected Levenberg-Marquardt towards ``target`` (N, 3) within the limits, from ``v`` (N, 3).
+
+    Returns:
+        the joint values (N, 3) and the squared distances to the targets (N,) [m^2].
+    """
+    lo, hi = g.limits[:, 0], g.limits[:, 1]
+    lam = np.full(v.shape[0], 1e-4)
+    p, J = finger_fk_local(g, v)
+    e = p - target
+    cost = np.einsum("ni,ni->n", e, e)
+    for _ in range(_LM_ITERATIONS):
+        JtJ = np.einsum("nki,nkj->nij", J, J)
+        g_ = np.einsum("nki,nk->ni", J, e)
+        H = JtJ + lam[:, None, None] * np.eye(3)
+        step = -np.linalg.solve(H, g_[..., None])[..., 0]
+        v_new = np.clip(v + step, lo, hi)
+        p_new, J_new = finger_fk_local(g, v_new)
+        e_new = p_new - target
+        cost_new = np.einsum("ni,ni->n", e_new, e_new)
+        ok = cost_new < cost
+        v = np.where(ok[:, None], v_new, v)
+        J = np.where(ok[:, None, None], J_new, J)
+        e = np.where(ok[:, None], e_new, e)
+        cost = np.where(ok, cost_new, cost)
+        lam = np.where(ok, lam * 0.3, lam * 10.0)
+    return v, cost
+
+
+def _nearest_reachable(g: FingerGeometry, v0: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Multi-start :func:`_refine`: from ``v0`` (N, 3) and a grid of joint-limit corners; the best wins."""
+    lo, hi = g.limits[:, 0], g.limits[:, 1]
+    grid = np.stack(
+        np.meshgrid(*[np.linspace(lo[i], hi[i], m) for i, m in enumerate(_GRID)], indexing="ij"), -1
+    ).reshape(-1, 3)
+    starts = np.concatenate([v0[:, None], np.broadcast_to(grid, (len(v0),) + grid.shape)], axis=1)
+    s = starts.shape[1]
+    v, cost = _refine(g, starts.reshape(-1, 3), np.repeat(target, s, axis=0))
+    best = np.argmin(cost.reshape(-1, s), axis=1)
+    return v.reshape(-1, s, 3)[np.arange(len(v0)), best]
+
+
+def finger_ik(finger: str, p_wrist: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray:
+    """Joint values of one finger placing its tip at (or as near as it can to) ``p_wrist``.
+
+    Args:
+        finger: one of :data:`retarget.sah.FINGERS`.
+        p_wrist: (3,) or (N, 3) [m] fingertip targets in the wrist frame.
+        seed: (k,) or (N, k) [rad] current values of the finger's joints
+            (``sah.FINGER_JOINTS[finger]``); only the thumb uses it, for its fixed base rotation
+            (default: :func:`retarget.sah.rest_joints`). The closed form needs no other seed.
+
+    Returns:
+        (N, k) [rad] values of ``sah.FINGER_JOINTS[finger]`` (thumb: base, abd, prox, mid; others: abd,
+        prox, mid), inside the joint limits; the distal joint follows the mid one.
+
+    Raises:
+        InputError: unknown finger, wrong shapes or non-finite input.
+    """
+    g = finger_geometry(finger)
+    p = np.asarray(p_wrist, dtype=float)
+    if p.ndim == 1:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"finger_ik: p_wrist must have shape (3,) or (N, 3), found {np.shape(p_wrist)}")
+    if not np.all(np.isfinite(p)):
+        raise InputError("finger_ik: p_wrist has non-finite values")
+    n = p.shape[0]
+    k = len(sah.FINGER_JOINTS[finger])
+    if finger == "thumb":
+        if seed is None:
+            base = np.full(n, sah.rest_joints()[0])
+        else:
+            s = np.asarray(seed, dtype=float)
+            if s.shape not in ((k,), (n, k)):
+                raise InputError(f"finger_ik: seed must have shape ({k},) or ({n}, {k}), found {s.shape}")
+            base = np.broadcast_to(s[..., 0], (n,)).astype(float)
+        base = np.clip(base, *sah.JOINT_LIMITS[0])
+    else:
+        base = np.zeros(n)
+    T = _T_wrist_knuckle0(g, base)
+    p_local = np.einsum("nji,nj->ni", T[..., :3, :3], p - T[..., :3, 3])
+    v, clipped = _closed_form(g, p_local)
+    if np.any(clipped):
+        v[clipped] = _nearest_reachable(g, v[clipped], p_local[clipped])
+    return np.concatenate([base[:, None], v], axis=-1) if finger == "thumb" else v
+
+
+def hand_ik(p_wrist_tips: np.ndarray, seed_joints: np.ndarray) -> np.ndarray:
+    """IK of all four fingers.
+
+    Args:
+        p_wrist_tips: (4, 3) [m] fingertip targets in the wrist frame, :data:`retarget.sah.FINGERS` order.
+        seed_joints: (13,) [rad]; its thumb base value is kept.
+
+    Returns:
+        (13,) [rad] joint values inside the limits.
+    """
+    p = np.asarray(p_wrist_tips, dtype=float)
+    seed = np.asarray(seed_joints, dtype=float)
+    if p.shape != (4, 3) or seed.shape != (13,):
+        raise InputError(f"hand_ik: expected (4, 3) targets and a (13,) seed, found {p.shape}, {seed.shape}")
+    out = seed.copy()
+    for i, f in enumerate(sah.FINGERS):
+        idx = list(sah.FINGER_JOINTS[f])
+        out[idx] = finger_ik(f, p[i], seed[idx])[0]
+    return out
