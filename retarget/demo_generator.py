@@ -47,9 +47,11 @@ __all__ = [
     "ObjectDistance",
     "HandSamples",
     "hand_samples",
+    "sample_points",
     "min_jerk",
     "correlated_noise",
     "generate",
+    "object_rng",
     "NOISE",
     "FINGER_RADIUS_M",
 ]
@@ -132,7 +134,7 @@ class HandSamples:
 
     def points(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sample centres (..., N, 3) and fingertip sphere centres (..., 5, 3) in the wrist frame."""
-        return _sample_points(joints)
+        return sample_points(joints)
 
 
 _LAYOUT: dict = {}
@@ -176,7 +178,12 @@ def _layout():
     return _LAYOUT
 
 
-def _sample_points(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sample_points(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Hand sample centres (..., N, 3) and fingertip sphere centres (..., 5, 3) in the wrist frame.
+
+    The layout (owner finger, segment, radius of each sample) is :func:`hand_samples`; a fingertip sphere
+    centre sits one finger radius behind ``human_hand.fingertip_positions`` along the distal segment.
+    """
     hand = _hand()
     lay = _layout()
     frames = hand.fk(joints)
@@ -399,7 +406,7 @@ class GraspReport:
 
 
 def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.ndarray):
-    pts, centres = _sample_points(J)
+    pts, centres = sample_points(J)
     sd = dist.signed(_to_object(T, pts)) - radius
     rt = np.array([FINGER_RADIUS_M[f] for f in FINGERS])
     gaps = dist.signed(_to_object(T, centres)) - rt
@@ -426,7 +433,7 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
 
     def residuals(x):
         T, J = unpack(x)
-        pts, centres = _sample_points(J)
+        pts, centres = sample_points(J)
         sd = dist.signed(_to_object(T, pts)) - samples.radius
         r = [
             ((_to_object(T, centres[kk]) - goal) / 0.002).ravel(),
@@ -464,7 +471,7 @@ def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, sa
         Js[idx[active]] = np.clip(
             J[idx[active]] + s * rate[active], limits[idx[active], 0], limits[idx[active], 1]
         )
-        pts, _ = _sample_points(Js)
+        pts, _ = sample_points(Js)
         sd = dist.signed(_to_object(T, pts[mine])) - samples.radius[mine]
         return Js, sd
 
@@ -520,6 +527,20 @@ def _trajectory(strategy: Strategy, T_final: np.ndarray, J_final: np.ndarray, sa
     return t, T, J
 
 
+def object_rng(name: str, seed: int) -> np.random.Generator:
+    """The noise stream of one object's demonstration for a run seed.
+
+    One child of ``SeedSequence(seed)`` per object, fixed by the object's place in
+    :data:`DEMONSTRATED_OBJECTS`, so regenerating one object gives the same file as regenerating all.
+    """
+    if name not in STRATEGIES:
+        raise assets.InputError(
+            f"no demonstration strategy for {name!r}; valid names: {', '.join(STRATEGIES)}"
+        )
+    children = np.random.SeedSequence(seed).spawn(len(DEMONSTRATED_OBJECTS))
+    return np.random.default_rng(children[DEMONSTRATED_OBJECTS.index(name)])
+
+
 def generate(
     name: str, rng: np.random.Generator, seed: int | None = None
 ) -> tuple[Demonstration, GraspReport]:
@@ -559,7 +580,7 @@ def generate(
     pen_traj = max(-_penetration(dist, T_true[i], J_true[i], samples.radius)[0].min() for i in range(len(t)))
     if pen_traj > PENETRATION_TOL_M:
         raise GenerationError(f"{name}: the approach penetrates the object by {pen_traj * 1e3:.2f} mm")
-    _, centres = _sample_points(J)
+    _, centres = sample_points(J)
     _, normals = dist.closest(_to_object(T, centres))
     opp = normals[1:]
     ang = np.degrees(np.arccos(np.clip(opp @ opp.T, -1.0, 1.0)))

@@ -5,8 +5,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import numpy as np
-
 import assets
 from assets.errors import InputError
 
@@ -33,7 +31,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from retarget.demo_generator import DEMONSTRATED_OBJECTS, generate
+    from retarget.demo_generator import DEMONSTRATED_OBJECTS, generate, object_rng
 
     if getattr(args, "demo_command", None) != "generate":
         raise InputError("expected an action: pbdgrasp demo generate [--object O | --all]")
@@ -44,12 +42,8 @@ def run(args) -> int:
         )
     names = DEMONSTRATED_OBJECTS if args.all else (args.object,)
     out = Path(args.output)
-    root = np.random.SeedSequence(args.seed)
-    # one child stream per object, fixed by the object's position in DEMONSTRATED_OBJECTS, so that
-    # regenerating one object gives the same file as regenerating all
-    children = dict(zip(DEMONSTRATED_OBJECTS, root.spawn(len(DEMONSTRATED_OBJECTS)), strict=True))
     for name in names:
-        demo, report = generate(name, np.random.default_rng(children[name]), seed=args.seed)
+        demo, report = generate(name, object_rng(name, args.seed), seed=args.seed)
         path = demo.save(out / f"{name}.npz")
         print(
             f"{name}: {demo.num_steps} steps ({demo.duration_s:.2f} s, {demo.grasp_type}), fingertip gaps "
