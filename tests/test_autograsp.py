@@ -1,0 +1,125 @@
+"""Closing the SAH until contact (GraspIt!'s autoGrasp) and phi_o on hand-placed grasps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planning.autograsp import AutoGraspConfig, HandCloser, _reduce_patch
+from planning.world import World
+from retarget import sah
+
+QUALITY_THRESHOLD = 0.05  # the paper's epsilon: a grasp is a solution when phi_o >= 0.05
+MAX_PENETRATION_M = 0.002  # no link may sink deeper than 2 mm into anything after closing
+STOP_REASON_M = 0.0015  # a stopped joint must move a link within this distance of something
+
+# Hand-placed grasps, found by a local search around a nominal placement and checked by eye on renders.
+# q = [wrist position (m), wrist rotation vector (rad), 13 SAH joints (rad) in sah.JOINT_NAMES order].
+# Ham can (10 x 5.5 x 8 cm, upright at the origin), from above: the fingers point down (hand z ~ world
+# -z, tilted 25 deg), the palm faces -y; the thumb (base rotated 61 deg) and the three fingertips pinch
+# the can's two long faces near its top edge. Fingers pre-flexed 20/10 deg, abduction 0.
+HAM_FROM_ABOVE = [0.0231, 0.0267, 0.2922, -2.1117, 1.9064, 0.5296,
+                  1.0593, 0.0, 0.1745, 0.1745, 0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745]
+# Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm faces
+# +x (towards the can), the fingers point -y and curl around the can in a horizontal plane at z ~ 0.12 m;
+# the thumb module (base rotated 88 deg) closes the wrap on the other side.
+CHIPS_WRAPPED = [-0.0484, 0.1472, 0.1102, 1.6252, 0.0437, -0.1083,
+                 1.5293, 0.0, 0.1745, 0.1745, 0.0, 0.3191, 0.1745, 0.0, 0.3191, 0.1745, 0.0, 0.3191, 0.1745]
+
+
+@pytest.fixture(scope="module")
+def ham():
+    with World("ham") as w:
+        yield w
+
+
+@pytest.fixture(scope="module")
+def chips():
+    with World("chips") as w:
+        yield w
+
+
+def _check_stops_have_reasons(world: World, closer: HandCloser, closed_q: np.ndarray):
+    """GraspIt!'s rule, checked from outside: a closing joint below its upper limit has stopped because a
+    link it moves touches something; a joint at its limit may have reached it."""
+    touching = {}
+    for c in world.hand_contacts(closed_q, max_distance_m=STOP_REASON_M):
+        touching[c.link] = True
+    for j in closer.closing:
+        name = sah.JOINT_NAMES[j]
+        if closed_q[6 + j] >= sah.JOINT_LIMITS[j, 1] - 1e-9:
+            continue
+        finger = name.split("_")[0]
+        moved = [f"{finger}_middle", f"{finger}_distal"]
+        if name.endswith("_prox"):
+            moved.insert(0, f"{finger}_proximal")
+        assert any(touching.get(link) for link in moved), f"{name} stopped at {closed_q[6 + j]:.3f} rad"
+
+
+@pytest.mark.parametrize("scene, q", [("ham", HAM_FROM_ABOVE), ("chips", CHIPS_WRAPPED)])
+def test_hand_placed_grasps_reach_the_papers_threshold(scene, q, request):
+    world = request.getfixturevalue(scene)
+    closer = HandCloser(world)
+    res = closer.close(np.array(q))
+    assert not res.in_collision
+    assert res.quality >= QUALITY_THRESHOLD, res.message
+    assert len(res.contact_points_world) >= 3
+    assert any(link.startswith("thumb") for link in res.contact_links)  # the thumb opposes
+    # closing stops at contact: nothing sinks in
+    deepest = min(c.distance_m for c in world.hand_contacts(res.closed_q, max_distance_m=0.0))
+    assert deepest >= -MAX_PENETRATION_M
+    _check_stops_have_reasons(world, closer, res.closed_q)
+    # wrist, abduction and thumb base untouched; flexion only closes
+    moved = np.flatnonzero(np.abs(res.closed_q - q) > 1e-12)
+    assert set(moved - 6) <= set(closer.closing.tolist())
+    assert np.all(res.closed_q >= np.array(q) - 1e-12)
+
+
+def test_chips_contact_normals_point_into_the_can(chips):
+    res = HandCloser(chips).close(np.array(CHIPS_WRAPPED))
+    p, n = res.contact_points_world, res.contact_normals_world
+    towards_axis = -p[:, :2] / np.linalg.norm(p[:, :2], axis=1, keepdims=True)  # can axis = world z
+    side = p[:, 2] < 0.229  # contacts on the lateral surface, below the lid
+    assert side.any()
+    assert np.min(np.einsum("ij,ij->i", n[side, :2], towards_axis[side])) > 0.9
+    assert np.abs(np.linalg.norm(n, axis=1) - 1).max() < 1e-9
+
+
+def test_open_hand_far_away_closes_fully_and_scores_zero(ham):
+    closer = HandCloser(ham)
+    q = np.concatenate([[0.3, 0.3, 0.5], [0.0, 0.0, 0.0], sah.rest_joints()])
+    res = closer.close(q)
+    assert res.quality == 0.0 and not res.in_collision and len(res.contact_points_world) == 0
+    upper = sah.JOINT_LIMITS[closer.closing, 1]
+    assert np.abs(res.closed_q[6 + closer.closing] - upper).max() < 1e-12  # every finger at its limit
+
+
+def test_configuration_in_collision_scores_zero_without_closing(ham):
+    q = np.array(HAM_FROM_ABOVE)
+    q[2] -= 0.05  # 5 cm lower: the fingertips are inside the can
+    assert not ham.is_free(q)
+    res = HandCloser(ham).close(q)
+    assert res.quality == 0.0 and res.in_collision and res.steps == 0
+    assert np.array_equal(res.closed_q, q)
+
+
+def test_closing_is_deterministic(chips):
+    closer = HandCloser(chips)
+    a, b = closer.close(np.array(CHIPS_WRAPPED)), closer.close(np.array(CHIPS_WRAPPED))
+    assert a.quality == b.quality and np.array_equal(a.closed_q, b.closed_q)
+
+
+def test_reduce_patch_keeps_the_diameter_and_merges_duplicates():
+    p = np.array([[0, 0, 0], [0.001, 0, 0], [0.03, 0, 0], [0.015, 0.001, 0]], float)
+    n = np.tile([0, 0, 1.0], (4, 1))
+    rp, rn = _reduce_patch(p, n, merge_radius_m=0.005, max_points=2)
+    assert len(rp) == 2
+    assert abs(np.linalg.norm(rp[0] - rp[1]) - 0.0295) < 1e-12  # the merged (0.5 mm) end and the far end
+    assert np.allclose(rn, [[0, 0, 1]] * 2)
+
+
+def test_bad_config_and_q_raise(ham):
+    with pytest.raises(ValueError, match="step_rad"):
+        AutoGraspConfig(step_rad=0.0)
+    with pytest.raises(ValueError, match="19 finite"):
+        HandCloser(ham).close(np.zeros(7))
