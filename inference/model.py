@@ -1,0 +1,502 @@
+"""Build and solve the variation model's factor graph, its marginals P(X_t | O), and the ``.model.npz`` file.
+
+The graph (paper section V, see :mod:`inference.factors`) is P(O) P(X_1..X_T | O) with O ~ N(mu_o, Sigma_o)
+(``PriorFactorPose3``), the demonstration factors f_1t, the smoothness factors f_2t and, given a
+``constraint_fn``, linearized constraint factors f_3t/f_4t. It is solved by Gauss-Newton from
+``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)``.
+
+Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))`` (e.g. the
+signed distance of the hand to the scene) is evaluated at ``mu_o tau_r(t)``; steps with ``phi`` below
+``activation_distance`` get a variable ``C_t``, a factor ``C_t = phi0 + grad phi . dx`` (phi linearized by
+central differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
+``r_t = max(phi(mu_o tau_r(t)), clearance)`` and ``R_t = constraint_std^2``. Linearize, solve, take the
+marginal means as the new linearization point and repeat until they move less than ``mean_tolerance``
+(max-norm over all steps of the tangent change [rad, m]); ``iterations`` counts the solves.
+
+Conditioning on O (the marginals P(X_t | O = mu_o)): Gaussian conditioning deletes O's rows and columns from
+the information matrix, which is the Schur complement ``Sigma_x|o = Sigma_xx - Sigma_xo Sigma_oo^-1 Sigma_ox``
+of the joint covariance of ``(O, X)``. We compute it by building the graph with O held fixed at mu_o
+(``build_graph(..., fixed_object=True)``: f_1t becomes unary in ``(W_t, J_t)`` and P(O) drops out) and taking
+``gtsam.Marginals`` of ``(W_t, J_t)`` there: the same numbers (tests compare both against the Schur complement
+of the full graph's joint marginals) at ~70 us per step instead of ~4 ms for a ``jointMarginalCovariance``
+that includes O, which sits in every clique's separator. The means are the MAP of that conditioned graph (with
+the constraints, relinearized as above). The wrist mean is returned in the object frame,
+``T_object_wrist_mean = mu_o^-1 W_t``; the body-frame covariance is unchanged by that left multiplication.
+The full graph ``build_graph(..., fixed_object=False)`` is P(O) P(X | O) itself, for joint marginals.
+
+``.model.npz`` file.
+
+The graph (paper section V, see :mod:`inference.factors`) is P(O) P(X_1..X_T | O) with O ~ N(mu_o, Sigma_o)
+(``PriorFactorPose3``), the demonstration factors f_1t, the smoothness factors f_2t and, given a
+``constraint_fn``, linearized constraint factors f_3t/f_4t. It is solved by Gauss-Newton from
+``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)``.
+
+Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))`` (e.g. the
+signed distance of the hand to the scene) is evaluated at ``mu_o tau_r(t)``; steps with ``phi`` below
+``activation_distance`` get a variable ``C_t``, a factor ``C_t = phi0 + grad phi . dx`` (phi linearized by
+central differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
+``r_t = max(phi(mu_o tau_r(t)), clearance)`` and ``R_t = constraint_std^2``. Linearize, solve, take the
+marginal means as the new linearization point and repeat until they move less than ``mean_tolerance``
+(max-norm over all steps of the tangent change [rad, m]); ``iterations`` counts the solves.
+
+Conditioning on O: ``gtsam.Marginals`` gives the joint Gaussian of ``(O, W_t, J_t)`` (25x25, tangent at the
+solution, ``[omega_o, v_o, omega_w, v_w, joints]``). P(X_t | O = mu_o) is its Schur complement,
+``Sigma_x|o = Sigma_xx - Sigma_xo Sigma_oo^-1 Sigma_ox``, with mean shifted by
+``Sigma_xo Sigma_oo^-1 Log(O_hat^-1 mu_o)`` (zero without constraints, where O_hat = mu_o). The wrist mean is
+returned in the object frame, ``T_object_wrist_mean = mu_o^-1 W_t``; the body-frame covariance is unchanged
+by that left multiplication.
+
+``.model.npz`` (``numpy.savez_compressed``, no pickles; written atomically):
+
+=========================  ===========  ===========================================================
+key                        shape        meaning
+=========================  ===========  ===========================================================
+``T_object_wrist_mean``    (T, 4, 4)    mean wrist pose of P(X_t | O) in the object frame [m]
+``joints_mean``            (T, 13)      mean joints [rad]
+``cov``                    (T, 19, 19)  covariance ``[omega, v, joints]`` (Pose3 body tangent of the
+                                        wrist, right perturbation ``T Exp(xi)``) [rad^2, m^2]
+``T_world_object_mean``    (4, 4)       object prior mean mu_o
+``cov_object``             (6, 6)       Sigma_o, ``[omega, v]`` body
+``params_json``            () str       :class:`VariationParams` as JSON
+``iterations``             ()           relinearization solves (1 without constraints)
+``converged``              ()           the relinearization met its tolerance
+``constrained``            (T,)         steps that carried constraint factors
+``grasp_type``, ``object`` () str       from the trajectory
+``traj_*``                              the source trajectory's keys (``retarget.trajectory``), if any
+=========================  ===========  ===========================================================
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from assets.errors import InputError
+from assets.io import atomic_savez, load_npz, require_finite, require_rotation, require_shape, require_spd
+from retarget.lie import local, se3_inverse
+from retarget.trajectory import GRASP_TYPES, Trajectory
+
+from .factors import (
+    FingertipMap,
+    constraint_factors,
+    constraint_gradient,
+    demonstration_factors,
+    modeling_covariance,
+    smoothness_factors,
+)
+from .params import VariationParams
+
+__all__ = [
+    "VariationModel",
+    "build_graph",
+    "solve",
+    "factor_covariances",
+    "key_o",
+    "key_w",
+    "key_j",
+    "key_c",
+    "initial_values",
+]
+
+log = logging.getLogger(__name__)
+ConstraintFn = Callable[[np.ndarray, np.ndarray], float]
+
+
+def key_o() -> int:
+    """GTSAM key of the object pose O."""
+    return gtsam.symbol("o", 0)
+
+
+def key_w(t: int) -> int:
+    """GTSAM key of the wrist pose W_t (world frame)."""
+    return gtsam.symbol("w", t)
+
+
+def key_j(t: int) -> int:
+    """GTSAM key of the joints J_t."""
+    return gtsam.symbol("j", t)
+
+
+def key_c(t: int) -> int:
+    """GTSAM key of the constraint value C_t."""
+    return gtsam.symbol("c", t)
+
+
+@dataclass(frozen=True, eq=False)
+class VariationModel:
+    """The marginals P(X_t | O) of a solved variation model; see the module docstring for the file format.
+
+    Attributes:
+        T_object_wrist_mean: (T, 4, 4) wrist means in the object frame.
+        joints_mean: (T, 13) [rad].
+        cov: (T, 19, 19) ``[omega, v, joints]``, SPD.
+        T_world_object_mean: (4, 4) mu_o. cov_object: (6, 6) Sigma_o, ``[omega, v]``.
+        params: the parameters used. iterations: relinearization solves. converged: met the tolerance.
+        grasp_type, object: from the trajectory. source: the trajectory, if known.
+        constrained: (T,) bool, steps with constraint factors. solve_time_s: wall time of :func:`solve`.
+    """
+
+    T_object_wrist_mean: np.ndarray
+    joints_mean: np.ndarray
+    cov: np.ndarray
+    T_world_object_mean: np.ndarray
+    cov_object: np.ndarray
+    params: VariationParams
+    iterations: int
+    grasp_type: str
+    object: str
+    converged: bool = True
+    constrained: np.ndarray | None = None
+    source: Trajectory | None = None
+    solve_time_s: float = float("nan")
+    path: str | None = None
+
+    def __post_init__(self):
+        p = self.path
+        T = require_shape("T_object_wrist_mean", self.T_object_wrist_mean, (None, 4, 4), p)
+        n = T.shape[0]
+        if n < 2:
+            raise InputError(f"T_object_wrist_mean: a model needs at least 2 steps, found {n}", p)
+        require_finite("T_object_wrist_mean", T, p)
+        require_rotation("T_object_wrist_mean", T[:, :3, :3], p)
+        J = require_finite("joints_mean", require_shape("joints_mean", self.joints_mean, (n, 13), p), p)
+        C = require_spd("cov", require_shape("cov", self.cov, (n, 19, 19), p), p)
+        To = require_finite(
+            "T_world_object_mean",
+            require_shape("T_world_object_mean", self.T_world_object_mean, (4, 4), p),
+            p,
+        )
+        require_rotation("T_world_object_mean", To[:3, :3], p)
+        Co = require_spd("cov_object", require_shape("cov_object", self.cov_object, (6, 6), p), p)
+        if self.grasp_type not in GRASP_TYPES:
+            raise InputError(f"grasp_type: expected one of {GRASP_TYPES}, found {self.grasp_type!r}", p)
+        if not isinstance(self.params, VariationParams):
+            raise InputError(f"params: expected VariationParams, found {type(self.params).__name__}", p)
+        if int(self.iterations) < 1:
+            raise InputError(f"iterations: expected >= 1, found {self.iterations}", p)
+        mask = np.zeros(n, bool) if self.constrained is None else np.asarray(self.constrained, dtype=bool)
+        require_shape("constrained", mask, (n,), p, dtype=bool)
+        for name, value in (
+            ("T_object_wrist_mean", T),
+            ("joints_mean", J),
+            ("cov", C),
+            ("T_world_object_mean", To),
+            ("cov_object", Co),
+            ("constrained", mask),
+        ):
+            value = np.array(value)
+            value.setflags(write=False)
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "iterations", int(self.iterations))
+        object.__setattr__(self, "converged", bool(self.converged))
+
+    @property
+    def num_steps(self) -> int:
+        return self.T_object_wrist_mean.shape[0]
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the ``.model.npz`` file atomically (temporary file, then rename)."""
+        arrays = dict(
+            T_object_wrist_mean=self.T_object_wrist_mean,
+            joints_mean=self.joints_mean,
+            cov=self.cov,
+            T_world_object_mean=self.T_world_object_mean,
+            cov_object=self.cov_object,
+            params_json=np.str_(json.dumps(self.params.to_dict(), sort_keys=True)),
+            iterations=np.int64(self.iterations),
+            converged=np.bool_(self.converged),
+            constrained=self.constrained,
+            grasp_type=np.str_(self.grasp_type),
+            object=np.str_(self.object),
+            solve_time_s=np.float64(self.solve_time_s),
+        )
+        if self.source is not None:
+            s = self.source
+            arrays.update(
+                traj_T_object_wrist=s.T_object_wrist,
+                traj_joints=s.joints,
+                traj_cov_retarget=s.cov_retarget,
+                traj_fingertip_rmse_mm=s.fingertip_rmse_mm,
+                traj_T_world_object_mean=s.T_world_object_mean,
+                traj_cov_object=s.cov_object,
+                traj_dt_s=np.float64(s.dt_s),
+                traj_object=np.str_(s.object),
+                traj_grasp_type=np.str_(s.grasp_type),
+                traj_meta_json=np.str_(json.dumps(s.meta, sort_keys=True)),
+            )
+        return atomic_savez(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> VariationModel:
+        """Read and validate a ``.model.npz`` file.
+
+        Raises:
+            InputError: unreadable file, missing key, or invalid values (shapes, NaN, non-SPD, T < 2).
+        """
+        required = (
+            "T_object_wrist_mean",
+            "joints_mean",
+            "cov",
+            "T_world_object_mean",
+            "cov_object",
+            "params_json",
+            "iterations",
+            "grasp_type",
+            "object",
+        )
+        d = load_npz(path, required=required)
+        try:
+            params_dict = json.loads(str(d["params_json"]))
+        except ValueError as exc:
+            raise InputError(f"params_json: not JSON ({exc})", path) from None
+        params = VariationParams.from_dict(params_dict, path)
+        source = None
+        if "traj_T_object_wrist" in d:
+            try:
+                meta = json.loads(str(d.get("traj_meta_json", "{}")))
+            except ValueError as exc:
+                raise InputError(f"traj_meta_json: not JSON ({exc})", path) from None
+            source = Trajectory(
+                T_object_wrist=d["traj_T_object_wrist"],
+                joints=d["traj_joints"],
+                cov_retarget=d["traj_cov_retarget"],
+                fingertip_rmse_mm=d["traj_fingertip_rmse_mm"],
+                T_world_object_mean=d["traj_T_world_object_mean"],
+                cov_object=d["traj_cov_object"],
+                dt_s=float(d["traj_dt_s"]),
+                object=str(d["traj_object"]),
+                grasp_type=str(d["traj_grasp_type"]),
+                meta=meta if isinstance(meta, dict) else {},
+                path=str(path),
+            )
+        for key in ("iterations", "grasp_type", "object"):
+            if d[key].ndim != 0:
+                raise InputError(f"{key}: expected a scalar, found shape {d[key].shape}", path)
+        return cls(
+            T_object_wrist_mean=d["T_object_wrist_mean"],
+            joints_mean=d["joints_mean"],
+            cov=d["cov"],
+            T_world_object_mean=d["T_world_object_mean"],
+            cov_object=d["cov_object"],
+            params=params,
+            iterations=int(d["iterations"]),
+            grasp_type=str(d["grasp_type"]),
+            object=str(d["object"]),
+            converged=bool(d["converged"]) if "converged" in d else True,
+            constrained=d.get("constrained"),
+            source=source,
+            solve_time_s=float(d["solve_time_s"]) if "solve_time_s" in d else float("nan"),
+            path=str(path),
+        )
+
+
+def factor_covariances(
+    traj: Trajectory, params: VariationParams, fingertip_map: FingertipMap | None = None
+) -> np.ndarray:
+    """Sigma_r(t) + Sigma_m(t) (T, 19, 19), checked positive definite.
+
+    Raises:
+        InputError: the sum is not positive definite at some step (raise ``joint_floor_std_deg``).
+    """
+    cov = np.asarray(traj.cov_retarget) + modeling_covariance(
+        traj.T_object_wrist, traj.joints, traj.grasp_type, params, fingertip_map
+    )
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    eig_min = np.linalg.eigvalsh(cov).min(axis=-1)
+    if not np.all(eig_min > 0):
+        t = int(np.argmin(eig_min))
+        raise InputError(
+            f"Sigma_r + Sigma_m at step {t} is not positive definite (smallest eigenvalue "
+            f"{eig_min[t]:.3g}); raise joint_floor_std_deg or give sigma_m_std_config"
+        )
+    return cov
+
+
+def build_graph(
+    traj: Trajectory,
+    params: VariationParams,
+    cov_f1: np.ndarray,
+    T_world_object: np.ndarray,
+    cov_object: np.ndarray | None,
+    linearizations: dict | None = None,
+    fixed_object: bool = False,
+) -> gtsam.NonlinearFactorGraph:
+    """The factor graph P(O) P(X_1..X_T | O) (and the constraint factors of ``linearizations``).
+
+    Args:
+        traj: tau_r and Sigma_r.
+        params: parameters (smoothness, constraint noise).
+        cov_f1: (T, 19, 19) Sigma_r + Sigma_m (:func:`factor_covariances`).
+        T_world_object: (4, 4) mu_o. cov_object: (6, 6) Sigma_o ``[omega, v]``.
+        linearizations: ``{t: (T_world_wrist0, joints0, phi0, grad (19,), r_t)}`` for constrained steps.
+        fixed_object: hold O fixed at ``T_world_object`` (the graph of P(X | O = mu_o); no O variable, no
+            prior, ``cov_object`` unused).
+    """
+    graph = gtsam.NonlinearFactorGraph()
+    T_world_object = np.asarray(T_world_object, dtype=float)
+    if not fixed_object:
+        graph.add(
+            gtsam.PriorFactorPose3(
+                key_o(),
+                gtsam.Pose3(T_world_object),
+                gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_object, dtype=float)),
+            )
+        )
+    stds = params.smoothness_stds()
+    n = traj.num_steps
+    for t in range(n):
+        for f in demonstration_factors(
+            key_o(),
+            key_w(t),
+            key_j(t),
+            traj.T_object_wrist[t],
+            traj.joints[t],
+            cov_f1[t],
+            T_world_object if fixed_object else None,
+        ):
+            graph.add(f)
+        if t + 1 < n:
+            for f in smoothness_factors(key_w(t), key_w(t + 1), key_j(t), key_j(t + 1), stds):
+                graph.add(f)
+    for t, (T0, j0, phi0, grad, r_t) in (linearizations or {}).items():
+        for f in constraint_factors(
+            key_c(t),
+            key_w(t),
+            key_j(t),
+            T0,
+            j0,
+            phi0,
+            grad,
+            r_t,
+            params.constraint_std_mm * 1e-3,
+            params.constraint_delta_variance,
+        ):
+            graph.add(f)
+    return graph
+
+
+def initial_values(traj: Trajectory, T_world_object: np.ndarray, fixed_object: bool = False) -> gtsam.Values:
+    """The starting point ``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)`` (no O if ``fixed_object``)."""
+    values = gtsam.Values()
+    if not fixed_object:
+        values.insert(key_o(), gtsam.Pose3(T_world_object))
+    T_world_wrist = T_world_object @ traj.T_object_wrist
+    for t in range(traj.num_steps):
+        values.insert(key_w(t), gtsam.Pose3(T_world_wrist[t]))
+        values.insert(key_j(t), np.array(traj.joints[t]))
+    return values
+
+
+def _means(values: gtsam.Values, n: int) -> tuple[np.ndarray, np.ndarray]:
+    W = np.stack([values.atPose3(key_w(t)).matrix() for t in range(n)])
+    J = np.stack([values.atVector(key_j(t)) for t in range(n)])
+    return W, J
+
+
+def solve(
+    traj: Trajectory,
+    params: VariationParams | None = None,
+    *,
+    T_world_object: np.ndarray | None = None,
+    cov_object: np.ndarray | None = None,
+    constraint_fn: ConstraintFn | None = None,
+    fingertip_map: FingertipMap | None = None,
+) -> VariationModel:
+    """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
+
+    Args:
+        traj: the retargeted trajectory tau_r with Sigma_r(t).
+        params: defaults if None.
+        T_world_object, cov_object: the object prior (4, 4), (6, 6) ``[omega, v]``; the trajectory's if None.
+        constraint_fn: ``phi(T_world_wrist (4,4), joints (13,)) -> float`` (e.g. signed distance [m]); None
+            for no constraint factors.
+        fingertip_map: the Sigma_m mapping of :func:`inference.factors.modeling_covariance`.
+
+    Raises:
+        InputError: invalid object prior or a covariance that is not positive definite.
+    """
+    start = time.perf_counter()
+    params = params or VariationParams()
+    mu_o = traj.T_world_object_mean if T_world_object is None else T_world_object
+    mu_o = require_finite("T_world_object", require_shape("T_world_object", mu_o, (4, 4)))
+    require_rotation("T_world_object", mu_o[:3, :3])
+    cov_o = traj.cov_object if cov_object is None else cov_object
+    cov_o = require_spd("cov_object", require_shape("cov_object", cov_o, (6, 6)))
+    n = traj.num_steps
+    cov_f1 = factor_covariances(traj, params, fingertip_map)
+
+    # constrained steps and their targets r_t, fixed from tau_r in the scene
+    targets: dict[int, float] = {}
+    if constraint_fn is not None:
+        T_world_wrist_tau = mu_o @ traj.T_object_wrist
+        for t in range(n):
+            phi = float(constraint_fn(T_world_wrist_tau[t], np.array(traj.joints[t])))
+            if not np.isfinite(phi):
+                raise InputError(f"constraint function returned {phi} at step {t}")
+            if phi < params.activation_distance_mm * 1e-3:
+                targets[t] = max(phi, params.clearance_mm * 1e-3)
+
+    values = initial_values(traj, mu_o, fixed_object=True)
+    W_prev, J_prev = _means(values, n)
+    gn = gtsam.GaussNewtonParams()
+    gn.setMaxIterations(params.gauss_newton_max_iterations)
+    gn.setRelativeErrorTol(params.gauss_newton_relative_tolerance)
+    gn.setAbsoluteErrorTol(0.0)
+    iterations, converged = 0, not targets
+    for iterations in range(1, (params.max_iterations if targets else 1) + 1):
+        lin = {}
+        for t, r_t in targets.items():
+            phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
+            lin[t] = (W_prev[t], J_prev[t], phi0, grad, r_t)
+            if values.exists(key_c(t)):
+                values.update(key_c(t), np.array([phi0]))
+            else:
+                values.insert(key_c(t), np.array([phi0]))
+        graph = build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True)
+        values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
+        W_new, J_new = _means(values, n)
+        if targets:
+            move = max(float(np.abs(local(W_prev, W_new)).max()), float(np.abs(J_new - J_prev).max()))
+            log.debug("relinearization %d: means moved %.3g", iterations, move)
+            W_prev, J_prev = W_new, J_new
+            if move < params.mean_tolerance:
+                converged = True
+                break
+    if not converged:
+        log.warning("constraint relinearization did not converge in %d iterations", iterations)
+
+    T_object_wrist, joints, cov = _conditional_marginals(graph, values, mu_o, n)
+    return VariationModel(
+        T_object_wrist_mean=T_object_wrist,
+        joints_mean=joints,
+        cov=cov,
+        T_world_object_mean=mu_o,
+        cov_object=cov_o,
+        params=params,
+        iterations=iterations,
+        grasp_type=traj.grasp_type,
+        object=traj.object,
+        converged=converged,
+        constrained=np.isin(np.arange(n), list(targets)),
+        source=traj,
+        solve_time_s=time.perf_counter() - start,
+    )
+
+
+def _conditional_marginals(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, mu_o: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """P(X_t | O = mu_o) from the solved graph with O fixed: means in the object frame and (T, 19, 19)."""
+    marginals = gtsam.Marginals(graph, values)
+    cov = np.stack([marginals.jointMarginalCovariance([key_w(t), key_j(t)]).fullMatrix() for t in range(n)])
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    W, J = _means(values, n)
+    return se3_inverse(mu_o) @ W, J, cov

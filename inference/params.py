@@ -1,0 +1,190 @@
+"""Parameters of the variation model (paper sections IV-VI): one frozen dataclass, loaded from YAML.
+
+Every field has the paper's default (or a documented choice where the paper is silent); a YAML file
+(``pbdgrasp infer --params P.yaml``) sets any subset of them by name, unknown names are an error::
+
+    # modelling error Sigma_m (paper section IV): fingertip, wrist position and orientation stds
+    precision_fingertip_std_mm: 8.0
+    precision_wrist_position_std_mm: 5.0
+    precision_wrist_rotation_std_deg: 2.0
+    power_fingertip_std_mm: 18.0          # +10 mm for power grasps (finger curvature not optimized)
+    power_wrist_position_std_mm: 15.0     # +10 mm
+    power_wrist_rotation_std_deg: 2.0
+    joint_floor_std_deg: 1.0              # added to every joint's variance: keeps f_1t positive definite
+    # smoothness S_t between consecutive steps (per step of the trajectory, 20 Hz in the demonstrations)
+    smooth_position_std_mm: 10.0          # the paper's S_t = 10^2 I mm^2
+    smooth_rotation_std_deg: 5.0          # our choice: ~100 deg/s at 20 Hz
+    smooth_joint_std_deg: 5.0             # our choice: ~100 deg/s at 20 Hz
+    # configuration-space overrides: 19 stds [omega (3, rad), v (3, m), joints (13, rad)]; replace the above
+    sigma_m_std_config: null
+    smoothness_std_config: null
+    # linearized constraint factors f_3t, f_4t (section V-B), used only with a scene
+    clearance_mm: 10.0                    # r_t = max(phi(tau_r(t)), clearance)
+    constraint_std_mm: 5.0                # R_t = constraint_std^2
+    activation_distance_mm: 30.0          # constrain only steps with phi(tau_r(t)) below this
+    constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
+    gradient_step: 1.0e-5                 # central-difference step of grad phi in the 19-D tangent [rad, m]
+    # relinearization loop (section VI) and the Gauss-Newton solve inside it
+    max_iterations: 20
+    mean_tolerance: 1.0e-6                # stop when marginal means move less than this [rad, m]
+    gauss_newton_max_iterations: 100
+    gauss_newton_relative_tolerance: 1.0e-6   # relative change of the squared error
+
+Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
+covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian (the same
+way as Sigma_r in retargeting), the wrist stds are added on the ``[omega, v]`` block, and the joint floor on
+the joint block. With ``sigma_m_std_config`` set, Sigma_m is ``diag(sigma_m_std_config^2)`` instead (the
+floor is still added; set ``joint_floor_std_deg: 0`` to state the covariance exactly).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import yaml
+
+from assets.errors import InputError
+
+__all__ = ["VariationParams"]
+
+_CONFIG_DIM = 19
+
+
+@dataclass(frozen=True)
+class VariationParams:
+    """All parameters of the variation model; see the module docstring for meaning and units."""
+
+    precision_fingertip_std_mm: float = 8.0
+    precision_wrist_position_std_mm: float = 5.0
+    precision_wrist_rotation_std_deg: float = 2.0
+    power_fingertip_std_mm: float = 18.0
+    power_wrist_position_std_mm: float = 15.0
+    power_wrist_rotation_std_deg: float = 2.0
+    joint_floor_std_deg: float = 1.0
+    smooth_position_std_mm: float = 10.0
+    smooth_rotation_std_deg: float = 5.0
+    smooth_joint_std_deg: float = 5.0
+    sigma_m_std_config: tuple[float, ...] | None = field(default=None)
+    smoothness_std_config: tuple[float, ...] | None = field(default=None)
+    clearance_mm: float = 10.0
+    constraint_std_mm: float = 5.0
+    activation_distance_mm: float = 30.0
+    constraint_delta_variance: float = 1e-10
+    gradient_step: float = 1e-5
+    max_iterations: int = 20
+    mean_tolerance: float = 1e-6
+    gauss_newton_max_iterations: int = 100
+    gauss_newton_relative_tolerance: float = 1e-6
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("sigma_m_std_config", "smoothness_std_config"):
+                if value is None:
+                    continue
+                arr = np.asarray(value, dtype=float) if _is_numeric_seq(value) else None
+                if arr is None or arr.shape != (_CONFIG_DIM,):
+                    raise InputError(
+                        f"{f.name}: expected 19 numbers [omega (rad), v (m), joints (rad)], found {value!r}"
+                    )
+                if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+                    raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
+                object.__setattr__(self, f.name, tuple(float(x) for x in arr))
+                continue
+            is_int = f.name in ("max_iterations", "gauss_newton_max_iterations")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(f"{f.name}: expected a number, found {value!r}")
+            if is_int:
+                if int(value) != value or value < 1:
+                    raise InputError(f"{f.name}: expected an integer >= 1, found {value!r}")
+                object.__setattr__(self, f.name, int(value))
+                continue
+            value = float(value)
+            allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm")
+            if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+                raise InputError(
+                    f"{f.name}: expected a finite number {'>=' if allow_zero else '>'} 0, found {value!r}"
+                )
+            object.__setattr__(self, f.name, value)
+
+    # -- derived quantities in SI ------------------------------------------------------------------------
+    def modeling_stds(self, grasp_type: str) -> tuple[float, float, float]:
+        """``(fingertip_std_m, wrist_position_std_m, wrist_rotation_std_rad)`` of Sigma_m for a grasp type."""
+        if grasp_type not in ("precision", "power"):
+            raise InputError(f"grasp_type: expected 'precision' or 'power', found {grasp_type!r}")
+        get = lambda name: getattr(self, f"{grasp_type}_{name}")  # noqa: E731
+        return (
+            get("fingertip_std_mm") * 1e-3,
+            get("wrist_position_std_mm") * 1e-3,
+            math.radians(get("wrist_rotation_std_deg")),
+        )
+
+    def smoothness_stds(self) -> np.ndarray:
+        """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""
+        if self.smoothness_std_config is not None:
+            return np.array(self.smoothness_std_config)
+        rot, pos, joint = (
+            math.radians(self.smooth_rotation_std_deg),
+            self.smooth_position_std_mm * 1e-3,
+            math.radians(self.smooth_joint_std_deg),
+        )
+        return np.array([rot] * 3 + [pos] * 3 + [joint] * 13)
+
+    # -- I/O ---------------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """A JSON/YAML-ready dict of every field (tuples as lists)."""
+        out = dataclasses.asdict(self)
+        for key in ("sigma_m_std_config", "smoothness_std_config"):
+            if out[key] is not None:
+                out[key] = list(out[key])
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict | None, path=None) -> VariationParams:
+        """Parameters from a mapping of field names; missing names keep their defaults.
+
+        Raises:
+            InputError: not a mapping, an unknown name, or an invalid value.
+        """
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise InputError(
+                f"parameters: expected a mapping of names to values, found {type(data).__name__}", path
+            )
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise InputError(f"unknown parameters {unknown}; valid names: {', '.join(names)}", path)
+        try:
+            return cls(**data)
+        except InputError as exc:
+            raise InputError(exc.reason, path) from None
+
+    @classmethod
+    def from_yaml(cls, path: str | os.PathLike) -> VariationParams:
+        """Load a YAML parameter file (see the module docstring).
+
+        Raises:
+            InputError: missing or unparsable file, unknown names, invalid values.
+        """
+        try:
+            with open(path) as f:
+                data = yaml.safe_load(f)
+        except FileNotFoundError:
+            raise InputError("no such parameter file", path) from None
+        except yaml.YAMLError as exc:
+            raise InputError(f"not valid YAML ({exc})", path) from None
+        return cls.from_dict(data, path)
+
+
+def _is_numeric_seq(value) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return not isinstance(value, (str, bytes))
