@@ -214,7 +214,7 @@ OBJECTS = {
         source="rectangular ham tin, about 10 x 5.5 x 8 cm (issue 2; paper Fig. 6), 12 mm corner radius",
         mass_kg=0.34,
         material="metal",
-        grasp_type="power",
+        grasp_type="precision",
     ),
     "jam": dict(
         build=lambda: lathe(
