@@ -3,9 +3,19 @@
 The public API grows with the package; see the README for the configuration and frame conventions.
 """
 
+from . import human_hand, ik, kinematics, sah
+from .ik import finger_ik, hand_ik
+from .kinematics import HandModel
 from .lie import local, pose_from_q, q_from_pose, retract, se3_exp, se3_inverse, se3_log, so3_exp, so3_log
 
 __all__ = [
+    "HandModel",
+    "finger_ik",
+    "hand_ik",
+    "human_hand",
+    "ik",
+    "kinematics",
+    "sah",
     "local",
     "pose_from_q",
     "q_from_pose",
