@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -123,3 +125,19 @@ def test_bad_config_and_q_raise(ham):
         AutoGraspConfig(step_rad=0.0)
     with pytest.raises(ValueError, match="19 finite"):
         HandCloser(ham).close(np.zeros(7))
+
+
+def test_cli_quality_prints_epsilon_and_renders(tmp_path, capsys):
+    from planning.cli import main
+
+    qfile = tmp_path / "q.json"
+    qfile.write_text(json.dumps({"q": CHIPS_WRAPPED}))
+    out = tmp_path / "grasp.png"
+    argv = ["quality", "--scene", "chips", "--q", str(qfile), "--json", "--view", "top", "-o", str(out)]
+    assert main(argv) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["epsilon"] >= QUALITY_THRESHOLD and len(printed["closed_q"]) == 19
+    assert out.stat().st_size > 1000 and out.read_bytes()[:4] == b"\x89PNG"
+    qfile.write_text(json.dumps({"q": [0.0] * 5}))
+    assert main(["quality", "--scene", "chips", "--q", str(qfile)]) == 2
+    assert capsys.readouterr().err.startswith("error:")
