@@ -112,6 +112,17 @@ def hand_joint_names(hand: str) -> list[str]:
     return actuated
 
 
+def _default_excluded_pairs(hand: str) -> tuple[tuple[str, str], ...]:
+    """Link pairs of a hand that touch by construction: ``retarget.sah.SELF_COLLISION_EXCLUDED_PAIRS``."""
+    if hand == "sah":
+        try:
+            from retarget.sah import SELF_COLLISION_EXCLUDED_PAIRS
+        except ImportError:  # pragma: no cover
+            return ()
+        return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
+    return ()
+
+
 def _quat_from_rotvec(r: np.ndarray) -> list[float]:
     """Quaternion [x, y, z, w] of a rotation vector (3,) [rad]; cheaper than scipy for one vector."""
     theta = math.sqrt(float(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
@@ -150,6 +161,9 @@ class World:
     Args:
         scene: a :class:`Scene` or a scene name/path for :func:`load_scene`.
         hand: the hand to load (``sah``: q is (19,); ``human``: q is (6 + 20,)).
+        self_collision_excluded: pairs of hand link names whose mutual collisions are ignored (they
+            touch by construction); default ``retarget.sah.SELF_COLLISION_EXCLUDED_PAIRS`` for the SAH,
+            none for other hands.
 
     Attributes:
         client: the pybullet client id.
@@ -158,9 +172,15 @@ class World:
         joint_names: the order of ``q[6:]``.
     """
 
-    def __init__(self, scene: Scene | str | Path, hand: str = "sah"):
+    def __init__(
+        self,
+        scene: Scene | str | Path,
+        hand: str = "sah",
+        self_collision_excluded: tuple[tuple[str, str], ...] | None = None,
+    ):
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.hand = hand
+        self._excluded = self_collision_excluded
         self.client = pb.connect(pb.DIRECT)
         try:
             self._build()
@@ -208,6 +228,14 @@ class World:
         dyn = pb.getDynamicsInfo(self.hand_id, -1, physicsClientId=c)
         self._wrist_inertial = (dyn[3], dyn[4])  # pybullet's base pose is that of its inertial frame
         self._bodies = (self.table_id, self.object_id, *self.obstacle_ids)
+        excluded = self._excluded if self._excluded is not None else _default_excluded_pairs(self.hand)
+        links = {self.base_name: -1, **{name: i for i, name in enumerate(self.link_names)}}
+        for a, b in excluded:
+            if a not in links or b not in links:
+                raise InputError(
+                    f"self_collision_excluded: unknown link in {(a, b)}; valid: {', '.join(links)}"
+                )
+            pb.setCollisionFilterPair(self.hand_id, self.hand_id, links[a], links[b], 0, physicsClientId=c)
         self.dof = 6 + len(self.joint_names)
         self.q = None
         log.debug(

@@ -217,3 +217,17 @@ def test_cli_assets_lists_everything():
     assert "sah" in res.stdout and " 13 joints" in res.stdout
     for name in ("ham_arc", "chips_between_cans", "chips_flat", "jam_hole", "big_cup", "bottle"):
         assert name in res.stdout
+
+
+def test_human_hand_world_with_excluded_pairs():
+    # the human URDF's wrist overlaps its little-finger and thumb bases by construction
+    pairs = (("wrist", "little_proximal"), ("wrist", "thumb_metacarpal"))
+    with World("ham", hand="human", self_collision_excluded=pairs) as w:
+        assert w.dof == 26
+        q = np.concatenate([[0, 0, 0.6, 0, 0, 0], w.rest_q()[6:]])
+        assert w.is_free(q)
+        q[2] = 0.05
+        assert not w.is_free(q)
+        assert w.render(q, 64, 48).shape == (48, 64, 3)
+    with pytest.raises(InputError, match="unknown link"):
+        World("ham", hand="human", self_collision_excluded=(("wrist", "pinky"),))
