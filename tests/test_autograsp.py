@@ -118,6 +118,8 @@ def test_reduce_patch_keeps_the_diameter_and_merges_duplicates():
     assert len(rp) == 2
     assert abs(np.linalg.norm(rp[0] - rp[1]) - 0.0295) < 1e-12  # the merged (0.5 mm) end and the far end
     assert np.allclose(rn, [[0, 0, 1]] * 2)
+    cp, cn = _reduce_patch(p, n, merge_radius_m=0.005, max_points=1)
+    assert np.allclose(cp, [p.mean(axis=0)]) and np.allclose(cn, [[0, 0, 1]])
 
 
 def test_bad_config_and_q_raise(ham):
