@@ -113,14 +113,14 @@ def hand_joint_names(hand: str) -> list[str]:
 
 
 def _default_excluded_pairs(hand: str) -> tuple[tuple[str, str], ...]:
-    """Link pairs of a hand that touch by construction: ``retarget.sah.SELF_COLLISION_EXCLUDED_PAIRS``."""
+    """Link pairs of a hand that touch by construction (``SELF_COLLISION_EXCLUDED_PAIRS`` of its module)."""
     if hand == "sah":
-        try:
-            from retarget.sah import SELF_COLLISION_EXCLUDED_PAIRS
-        except ImportError:  # pragma: no cover
-            return ()
-        return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
-    return ()
+        from retarget.sah import SELF_COLLISION_EXCLUDED_PAIRS
+    elif hand == "human":
+        from retarget.human_hand import SELF_COLLISION_EXCLUDED_PAIRS
+    else:
+        return ()
+    return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
 
 
 def _quat_from_rotvec(r: np.ndarray) -> list[float]:

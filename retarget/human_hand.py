@@ -23,12 +23,20 @@ __all__ = [
     "FINGER_JOINTS",
     "JOINT_LIMITS",
     "TIP_LINKS",
+    "SELF_COLLISION_EXCLUDED_PAIRS",
     "model",
     "fk",
     "fingertip_positions",
 ]
 
 FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring", "little")
+
+# The palm capsule overlaps the little finger's and the thumb's first segments by construction (they are
+# soft tissue in a real hand); pybullet only excludes parent-child pairs itself.
+SELF_COLLISION_EXCLUDED_PAIRS: tuple[tuple[str, str], ...] = (
+    ("wrist", "little_proximal"),
+    ("wrist", "thumb_metacarpal"),
+)
 
 JOINT_NAMES: tuple[str, ...] = ("thumb_cmc_abd", "thumb_cmc_flex", "thumb_mcp", "thumb_ip") + tuple(
     f"{f}_{j}" for f in FINGERS[1:] for j in ("abd", "mcp", "pip", "dip")

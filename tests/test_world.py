@@ -220,9 +220,9 @@ def test_cli_assets_lists_everything():
 
 
 def test_human_hand_world_with_excluded_pairs():
-    # the human URDF's wrist overlaps its little-finger and thumb bases by construction
-    pairs = (("wrist", "little_proximal"), ("wrist", "thumb_metacarpal"))
-    with World("ham", hand="human", self_collision_excluded=pairs) as w:
+    # the human URDF's wrist overlaps its little-finger and thumb bases by construction: the default
+    # exclusions come from retarget.human_hand.SELF_COLLISION_EXCLUDED_PAIRS
+    with World("ham", hand="human") as w:
         assert w.dof == 26
         q = np.concatenate([[0, 0, 0.6, 0, 0, 0], w.rest_q()[6:]])
         assert w.is_free(q)
