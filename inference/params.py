@@ -28,7 +28,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     max_iterations: 20
     mean_tolerance: 1.0e-6                # stop when marginal means move less than this [rad, m]
     gauss_newton_max_iterations: 100
-    gauss_newton_relative_tolerance: 1.0e-6   # relative change of the squared error
+    gauss_newton_relative_tolerance: 1.0e-10  # relative change of the squared error
 
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
 covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian (the same
@@ -78,7 +78,7 @@ class VariationParams:
     max_iterations: int = 20
     mean_tolerance: float = 1e-6
     gauss_newton_max_iterations: int = 100
-    gauss_newton_relative_tolerance: float = 1e-6
+    gauss_newton_relative_tolerance: float = 1e-10
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
