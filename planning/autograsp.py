@@ -32,12 +32,12 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import pybullet as pb
 
 import assets
 from assets.errors import InputError
 from retarget import sah
 
+from ._pybullet import pb
 from .grasp_quality import epsilon_l1
 
 __all__ = ["AutoGraspConfig", "GraspResult", "HandCloser", "phi_o"]

@@ -18,12 +18,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
 
+from ._pybullet import pb
 from .scene import Scene, load_scene
 
 __all__ = ["Contact", "World", "default_camera", "hand_joint_names", "hand_rest_joints"]

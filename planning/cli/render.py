@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 
 def hover_q(world) -> np.ndarray:
     """An open hand pointing down, 5 cm above the top of the object (raised until collision-free)."""
-    import pybullet as pb
+    from planning._pybullet import pb
 
     lo, hi = pb.getAABB(world.object_id, physicsClientId=world.client)
     q = world.rest_q()
@@ -45,7 +45,7 @@ def hover_q(world) -> np.ndarray:
 
 def reach_m(world) -> float:
     """Distance [m] from the wrist to the farthest point of the open hand along the wrist z axis."""
-    import pybullet as pb
+    from planning._pybullet import pb
 
     q = world.rest_q()
     q[2] = 3.0
