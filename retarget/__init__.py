@@ -7,6 +7,9 @@ from . import human_hand, ik, kinematics, sah
 from .ik import finger_ik, hand_ik
 from .kinematics import HandModel
 from .lie import local, pose_from_q, q_from_pose, retract, se3_exp, se3_inverse, se3_log, so3_exp, so3_log
+from .retargeting import RetargetConfig, RetargetResult, retarget_demonstration, retarget_fingertips
+from .rosenbrock import RosenbrockResult, minimize_rosenbrock
+from .virtual_fingers import VirtualFingers, choose_virtual_fingers
 
 __all__ = [
     "HandModel",
@@ -25,4 +28,12 @@ __all__ = [
     "se3_log",
     "so3_exp",
     "so3_log",
+    "RetargetConfig",
+    "RetargetResult",
+    "retarget_demonstration",
+    "retarget_fingertips",
+    "RosenbrockResult",
+    "minimize_rosenbrock",
+    "VirtualFingers",
+    "choose_virtual_fingers",
 ]

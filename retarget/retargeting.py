@@ -1,0 +1,473 @@
+"""Retargeting a human demonstration to the SAH: tau_h -> tau_v -> tau_r and Sigma_r(t) (paper, section IV).
+
+Steps, per demonstration:
+
+1. **Virtual fingers** (:mod:`retarget.virtual_fingers`) at the last step of tau_h pick the human finger
+   each SAH finger follows; their fingertips in the object frame form tau_v.
+2. **Per step t**, the SAH wrist pose ``k`` (6 DOF) minimises ``sum_i w_i d_i(k, t)`` with Rosenbrock's
+   method (:mod:`retarget.rosenbrock`), warm-started at the previous step's optimum. The finger joints are
+   no variables: for each trial wrist pose the robust per-finger IK (:func:`retarget.ik.hand_ik`, seeded
+   with the previous step's joints) places the fingertips at tau_v(t) as well as it can.
+3. **Sigma_r(t)**: the step's fingertip mean squared error ``mse = mean_j |F_j(k) - F_j(tau_v)|^2`` taken
+   as an isotropic fingertip covariance ``mse / 3 * I_12`` (so that each fingertip's expected squared
+   distance is the MSE) and mapped into the 19-D tangent ``[omega, v, 13 joints]`` by the fingertip
+   Jacobian's pseudo-inverse (:func:`retarget.sah.config_cov_from_fingertip_cov`): rank <= 12, the
+   paper's degenerate covariances. The wrist part is GTSAM's Pose3 body tangent (right perturbation).
+
+The distances (paper's d1..d7, weights ``(3, 1, 1, 1, 0.1, 10000, 10)``):
+
+* d1..d4: fingertip distance thumb, index, middle, ring to their tau_v target [mm].
+* d5: wrist distance to the human wrist carried over by ``rT_h``: position error [mm] plus rotation
+  angle [deg] between ``T_object_rwrist`` and ``T_object_hwrist @ T_hwrist_rwrist``.
+* d6: 0 if the hand is collision-free (object and table), else 1; from an injected ``is_free`` callable.
+* d7: ``max_i |J_i(k) - J_i(tau_r(t - 1))|`` over the 13 joints, in **radians** by default
+  (:attr:`RetargetConfig.smoothness_unit`); 0 at the first step. The paper gives no unit. In degrees,
+  w7 = 10 makes one degree of joint change weigh as much as 10 mm of fingertip error (3.3 mm of the
+  thumb's): on a synthetic demonstration that the SAH reproduces exactly (60 steps, tests) the optimum then
+  drifts the wrist to freeze the fingers and the fingertip error grows to 35 mm, against 0 mm in radians.
+
+``rT_h`` (:func:`palm_alignment`): both hand models share the wrist axes (+z along the middle finger, +y
+towards the thumb, +x out of the palm); the SAH is about 1.5 times larger, so its wrist is placed with the
+same orientation and its palm centre on the human palm centre. The palm centre of a hand is the midpoint
+between its wrist origin and the centroid of the index, middle and ring knuckles (MCP joints) at zero joints.
+
+d6 is evaluated lazily: Rosenbrock accepts a trial only if its value is not above the best value seen so
+far, and d6 >= 0, so a trial whose other terms already exceed that value is rejected without a collision
+query (the objective returns that lower bound instead of the exact value; accepted values are exact).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from assets.errors import InputError
+
+from . import ik, sah
+from .lie import make_pose, q_from_pose, se3_exp
+from .rosenbrock import minimize_rosenbrock
+from .trajectory import Trajectory
+from .virtual_fingers import VirtualFingers, virtual_fingers_of
+
+__all__ = [
+    "PAPER_WEIGHTS",
+    "RetargetConfig",
+    "StepCosts",
+    "RetargetResult",
+    "palm_alignment",
+    "palm_centre",
+    "step_costs",
+    "virtual_finger_targets",
+    "retarget_fingertips",
+    "retarget_demonstration",
+    "fingertip_cov_to_config",
+]
+
+log = logging.getLogger(__name__)
+
+PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
+"""(w1..w7) of the paper for the SAH: thumb, index, middle, ring, wrist, collision, smoothness."""
+
+IsFree = Callable[[np.ndarray], bool]
+"""``is_free(q)``: q (19,) = [p (m), rotation vector (rad), 13 joints (rad)], SAH in the OBJECT frame."""
+
+
+@dataclass(frozen=True)
+class RetargetConfig:
+    """Settings of the per-step optimisation; defaults are the paper's where it gives them.
+
+    Attributes:
+        weights: (w1..w7), see :data:`PAPER_WEIGHTS`.
+        smoothness_unit: ``"rad"`` or ``"deg"``, the unit of d7 (the paper does not say; see the module
+            docstring for why radians).
+        step_rot_deg: Rosenbrock's initial step of the wrist rotation [deg].
+        step_pos_mm: Rosenbrock's initial step of the wrist position [mm].
+        xtol: stop when all steps are below this fraction of the initial ones (0.02: 0.1 mm, 0.06 deg).
+        max_nfev: objective evaluations per step (a trade-off of accuracy and time).
+        escape_factors: when a step's optimum collides, Rosenbrock restarts from it with the initial steps
+            multiplied by each factor in turn (until one ends collision-free), keeping the best result:
+            a local search started inside the +w6 plateau with the other terms at their minimum only
+            contracts and never sees the free region (our addition; the paper only says w6 is finite
+            "to allow for the traversal of forbidden areas").
+        n_virtual: opposing virtual fingers, l - 1 = 3 for the SAH.
+        adjacent_only: virtual fingers group neighbouring fingers only.
+    """
+
+    weights: tuple[float, ...] = PAPER_WEIGHTS
+    smoothness_unit: str = "rad"
+    step_rot_deg: float = 2.0
+    step_pos_mm: float = 5.0
+    xtol: float = 0.02
+    max_nfev: int = 300
+    escape_factors: tuple[float, ...] = (4.0, 16.0)
+    n_virtual: int = 3
+    adjacent_only: bool = True
+
+    def __post_init__(self):
+        w = tuple(float(x) for x in self.weights)
+        if len(w) != 7 or not all(np.isfinite(x) and x >= 0 for x in w):
+            raise InputError(f"weights: expected 7 non-negative numbers (w1..w7), found {self.weights!r}")
+        object.__setattr__(self, "weights", w)
+        if self.smoothness_unit not in ("deg", "rad"):
+            raise InputError(f"smoothness_unit: expected 'deg' or 'rad', found {self.smoothness_unit!r}")
+        if not (self.step_rot_deg > 0 and self.step_pos_mm > 0 and self.xtol > 0 and self.max_nfev >= 1):
+            raise InputError("step_rot_deg, step_pos_mm, xtol must be > 0 and max_nfev >= 1")
+        if not all(f > 0 for f in self.escape_factors):
+            raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")
+
+
+@dataclass(frozen=True)
+class StepCosts:
+    """The distances of one configuration at one step (see the module docstring for units)."""
+
+    d: np.ndarray  # (7,) d1..d7
+    total: float  # sum w_i d_i
+    fingertip_error_m: np.ndarray  # (4, 3) robot minus target, object frame
+
+
+@dataclass(frozen=True, eq=False)
+class RetargetResult:
+    """tau_r with Sigma_r(t) and diagnostics; T steps.
+
+    Attributes:
+        T_object_wrist: (T, 4, 4) SAH wrist poses in the object frame [m].
+        joints: (T, 13) SAH joints [rad], ``sah.JOINT_NAMES`` order.
+        cov_retarget: (T, 19, 19) Sigma_r(t) in ``[omega, v, 13 joints]`` [rad^2, m^2].
+        fingertip_error_mm: (T, 4) distance of each SAH fingertip to its tau_v target [mm].
+        fingertip_rmse_mm: (T,) root mean square over the four fingertips [mm].
+        distances: (T, 7) d1..d7 at the optimum.
+        cost: (T,) the optimum's weighted sum.
+        nfev: (T,) objective evaluations per step.
+        n_collision_checks: (T,) collision queries per step (fewer than nfev: see the module docstring).
+        converged: (T,) Rosenbrock's success flag per step.
+        virtual_fingers: the chosen virtual fingers, if computed from a demonstration.
+        T_hwrist_rwrist: (4, 4) rT_h used.
+    """
+
+    T_object_wrist: np.ndarray
+    joints: np.ndarray
+    cov_retarget: np.ndarray
+    fingertip_error_mm: np.ndarray
+    fingertip_rmse_mm: np.ndarray
+    distances: np.ndarray
+    cost: np.ndarray
+    nfev: np.ndarray
+    n_collision_checks: np.ndarray
+    converged: np.ndarray
+    T_hwrist_rwrist: np.ndarray
+    virtual_fingers: VirtualFingers | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def rmse_mm(self) -> float:
+        """Fingertip RMSE over all steps and fingers [mm]."""
+        return float(np.sqrt(np.mean(self.fingertip_error_mm**2)))
+
+    @property
+    def q(self) -> np.ndarray:
+        """(T, 19) configurations ``[p, rotation vector, joints]`` in the object frame."""
+        return np.concatenate([q_from_pose(self.T_object_wrist), self.joints], axis=-1)
+
+    def to_trajectory(
+        self,
+        T_world_object_mean: np.ndarray,
+        cov_object: np.ndarray,
+        dt_s: float,
+        object_name: str,
+        grasp_type: str,
+        meta: dict | None = None,
+    ) -> Trajectory:
+        """The validated :class:`retarget.trajectory.Trajectory` (the ``.traj.npz`` contents)."""
+        info = dict(self.meta)
+        info.update(meta or {})
+        if self.virtual_fingers is not None:
+            info["virtual_fingers"] = {
+                "groups": [list(g) for g in self.virtual_fingers.groups],
+                "human_for_robot": list(self.virtual_fingers.human_for_robot),
+                "cohesive_index": self.virtual_fingers.cohesive_index,
+            }
+        info["rmse_mm"] = self.rmse_mm
+        info["T_hwrist_rwrist"] = self.T_hwrist_rwrist.tolist()
+        return Trajectory(
+            T_object_wrist=self.T_object_wrist,
+            joints=self.joints,
+            cov_retarget=self.cov_retarget,
+            fingertip_rmse_mm=self.fingertip_rmse_mm,
+            T_world_object_mean=T_world_object_mean,
+            cov_object=cov_object,
+            dt_s=dt_s,
+            object=object_name,
+            grasp_type=grasp_type,
+            meta=info,
+        )
+
+
+def palm_centre(hand) -> np.ndarray:
+    """Palm centre (3,) [m] in the wrist frame of a hand module (``sah`` or ``human_hand``).
+
+    The midpoint between the wrist origin and the centroid of the index, middle and ring knuckles at zero
+    joints; the knuckle of a finger is the origin of the first link of its chain below the wrist.
+    """
+    poses = hand.fk(np.zeros(len(hand.JOINT_NAMES)))
+    knuckles = []
+    for finger in ("index", "middle", "ring"):
+        names = [n for n in poses if n.startswith(finger + "_")]
+        if not names:
+            raise RuntimeError(f"{hand.__name__}: no link of the {finger} finger in fk()")
+        # The knuckle is the finger link nearest the wrist origin along the finger.
+        p = np.stack([poses[n][:3, 3] for n in names])
+        knuckles.append(p[np.argmin(p[:, 2])])
+    return 0.5 * np.mean(knuckles, axis=0)
+
+
+def palm_alignment() -> np.ndarray:
+    """rT_h as ``T_hwrist_rwrist`` (4, 4): same axes, SAH palm centre on the human palm centre."""
+    from . import human_hand
+
+    return make_pose(np.eye(3), palm_centre(human_hand) - palm_centre(sah))
+
+
+def fingertip_cov_to_config(T_object_wrist: np.ndarray, joints: np.ndarray, mse_m2: np.ndarray) -> np.ndarray:
+    """Sigma_r from per-step fingertip MSE: (T, 4, 4), (T, 13), (T,) [m^2] -> (T, 19, 19) PSD.
+
+    The fingertip covariance is ``mse / 3 * I_12`` (isotropic; trace per fingertip = mse).
+    """
+    J = sah.fingertip_jacobian(T_object_wrist, joints)
+    cov12 = (np.asarray(mse_m2, dtype=float) / 3.0)[:, None, None] * np.eye(12)
+    return sah.config_cov_from_fingertip_cov(J, cov12)
+
+
+def step_costs(
+    T_object_wrist: np.ndarray,
+    joints: np.ndarray,
+    p_object_targets: np.ndarray,
+    T_object_wrist_desired: np.ndarray,
+    joints_prev: np.ndarray | None,
+    collision_free: bool,
+    config: RetargetConfig,
+) -> StepCosts:
+    """d1..d7 and their weighted sum for one SAH configuration (pure; see the module docstring).
+
+    Args:
+        T_object_wrist: (4, 4) SAH wrist pose.
+        joints: (13,) [rad].
+        p_object_targets: (4, 3) tau_v(t) fingertips [m], SAH finger order.
+        T_object_wrist_desired: (4, 4) the human wrist carried over, ``T_object_hwrist @ T_hwrist_rwrist``.
+        joints_prev: (13,) tau_r(t - 1) joints, or None at the first step.
+        collision_free: the value of the collision check.
+        config: the weights and the unit of d7.
+    """
+    err = sah.fingertip_positions_in(T_object_wrist, joints) - p_object_targets
+    d = np.zeros(7)
+    d[:4] = 1e3 * np.linalg.norm(err, axis=-1)
+    d[4] = _wrist_distance(T_object_wrist, T_object_wrist_desired)
+    d[5] = 0.0 if collision_free else 1.0
+    d[6] = _smoothness(joints, joints_prev, config.smoothness_unit)
+    return StepCosts(d=d, total=float(np.dot(config.weights, d)), fingertip_error_m=err)
+
+
+def _wrist_distance(T: np.ndarray, T_des: np.ndarray) -> float:
+    """Position error [mm] plus rotation angle [deg]."""
+    dp = 1e3 * np.linalg.norm(T[:3, 3] - T_des[:3, 3])
+    R = T_des[:3, :3].T @ T[:3, :3]
+    sin_norm = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    angle = np.arctan2(sin_norm, 0.5 * (np.trace(R) - 1.0))
+    return float(dp + np.rad2deg(angle))
+
+
+def _smoothness(joints: np.ndarray, joints_prev: np.ndarray | None, unit: str) -> float:
+    if joints_prev is None:
+        return 0.0
+    delta = float(np.max(np.abs(joints - joints_prev)))
+    return float(np.rad2deg(delta)) if unit == "deg" else delta
+
+
+def virtual_finger_targets(
+    T_object_hwrist: np.ndarray, human_joints: np.ndarray, virtual_fingers: VirtualFingers
+) -> np.ndarray:
+    """tau_v: the followed human fingertips in the object frame, (T, 4, 4), (T, 20) -> (T, 4, 3) [m]."""
+    from . import human_hand
+
+    p_wrist = human_hand.fingertip_positions(human_joints)[:, list(virtual_fingers.human_indices)]
+    T = np.asarray(T_object_hwrist, dtype=float)
+    return np.einsum("tij,tkj->tki", T[:, :3, :3], p_wrist) + T[:, None, :3, 3]
+
+
+class _Objective:
+    """The per-step cost of a wrist perturbation ``x = [omega, v]`` about ``T_start`` (body frame)."""
+
+    def __init__(self, T_start, targets, T_des, joints_seed, joints_prev, is_free, config):
+        self.T_start = T_start
+        self.targets = targets
+        self.T_des = T_des
+        self.joints_seed = joints_seed
+        self.joints_prev = joints_prev
+        self.is_free = is_free
+        self.config = config
+        self.best = np.inf
+        self.n_checks = 0
+
+    def configuration(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        T = self.T_start @ se3_exp(x)
+        p_wrist = (self.targets - T[:3, 3]) @ T[:3, :3]
+        return T, ik.hand_ik(p_wrist, self.joints_seed)
+
+    def costs(self, x: np.ndarray, lazy: bool) -> tuple[StepCosts, bool]:
+        T, joints = self.configuration(x)
+        base = step_costs(T, joints, self.targets, self.T_des, self.joints_prev, True, self.config)
+        if self.is_free is None or (lazy and base.total > self.best):
+            return base, False
+        self.n_checks += 1
+        free = bool(self.is_free(np.concatenate([q_from_pose(T), joints])))
+        if free:
+            return base, True
+        d = base.d.copy()
+        d[5] = 1.0
+        total = base.total + self.config.weights[5]
+        return StepCosts(d=d, total=total, fingertip_error_m=base.fingertip_error_m), True
+
+    def __call__(self, x: np.ndarray) -> float:
+        c, _ = self.costs(x, lazy=True)
+        self.best = min(self.best, c.total)
+        return c.total
+
+
+def retarget_fingertips(
+    p_object_targets: np.ndarray,
+    T_object_hwrist: np.ndarray,
+    T_hwrist_rwrist: np.ndarray | None = None,
+    is_free: IsFree | None = None,
+    config: RetargetConfig | None = None,
+    joints0: np.ndarray | None = None,
+    progress: bool = False,
+) -> RetargetResult:
+    """Solve the paper's problem (2) step by step for given virtual-finger targets.
+
+    Args:
+        p_object_targets: (T, 4, 3) tau_v fingertips in the object frame [m], SAH finger order.
+        T_object_hwrist: (T, 4, 4) human wrist poses in the object frame.
+        T_hwrist_rwrist: (4, 4) rT_h; default :func:`palm_alignment`.
+        is_free: the collision check of d6 (q in the object frame), or None to drop d6.
+        config: :class:`RetargetConfig`; default the paper's weights.
+        joints0: (13,) IK seed of the first step (default ``sah.rest_joints()``).
+        progress: show a tqdm progress bar over the steps.
+
+    Returns:
+        The :class:`RetargetResult`.
+
+    Raises:
+        InputError: shapes or values are invalid.
+    """
+    config = config or RetargetConfig()
+    P = np.asarray(p_object_targets, dtype=float)
+    H = np.asarray(T_object_hwrist, dtype=float)
+    if P.ndim != 3 or P.shape[1:] != (4, 3) or H.shape != (P.shape[0], 4, 4) or P.shape[0] < 1:
+        raise InputError(
+            f"expected targets (T, 4, 3) and human wrist poses (T, 4, 4), found {P.shape} and {H.shape}"
+        )
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(H))):
+        raise InputError("targets and wrist poses must be finite")
+    rTh = palm_alignment() if T_hwrist_rwrist is None else np.asarray(T_hwrist_rwrist, dtype=float)
+    if rTh.shape != (4, 4):
+        raise InputError(f"T_hwrist_rwrist: expected (4, 4), found {rTh.shape}")
+    n = P.shape[0]
+    T_des = H @ rTh
+    joints_seed = sah.rest_joints() if joints0 is None else sah.clip_joints(joints0)
+    step0 = np.r_[np.full(3, np.deg2rad(config.step_rot_deg)), np.full(3, 1e-3 * config.step_pos_mm)]
+
+    out_T = np.zeros((n, 4, 4))
+    out_joints = np.zeros((n, 13))
+    out_err = np.zeros((n, 4, 3))
+    out_d = np.zeros((n, 7))
+    out_cost = np.zeros(n)
+    out_nfev = np.zeros(n, dtype=int)
+    out_checks = np.zeros(n, dtype=int)
+    out_ok = np.zeros(n, dtype=bool)
+    T_start = T_des[0]
+    joints_prev = None
+    for t in tqdm(range(n), desc="retarget", unit="step", disable=not progress, leave=False):
+        obj = _Objective(T_start, P[t], T_des[t], joints_seed, joints_prev, is_free, config)
+        res = minimize_rosenbrock(obj, np.zeros(6), step0=step0, xtol=config.xtol, max_nfev=config.max_nfev)
+        costs, _ = obj.costs(res.x, lazy=False)
+        nfev = res.nfev
+        for factor in config.escape_factors if is_free is not None else ():
+            if costs.d[5] == 0.0:
+                break
+            again = minimize_rosenbrock(
+                obj, res.x, step0=factor * step0, xtol=config.xtol / factor, max_nfev=config.max_nfev
+            )
+            nfev += again.nfev
+            if again.fun <= res.fun:
+                res = again
+                costs, _ = obj.costs(res.x, lazy=False)
+        T_opt, joints_opt = obj.configuration(res.x)
+        out_T[t], out_joints[t], out_err[t] = T_opt, joints_opt, costs.fingertip_error_m
+        out_d[t], out_cost[t] = costs.d, costs.total
+        out_nfev[t], out_checks[t], out_ok[t] = nfev, obj.n_checks, res.success
+        T_start, joints_seed, joints_prev = T_opt, joints_opt, joints_opt
+    mse_m2 = np.mean(np.sum(out_err**2, axis=-1), axis=-1)
+    cov = fingertip_cov_to_config(out_T, out_joints, mse_m2)
+    err_mm = 1e3 * np.linalg.norm(out_err, axis=-1)
+    result = RetargetResult(
+        T_object_wrist=out_T,
+        joints=out_joints,
+        cov_retarget=cov,
+        fingertip_error_mm=err_mm,
+        fingertip_rmse_mm=1e3 * np.sqrt(mse_m2),
+        distances=out_d,
+        cost=out_cost,
+        nfev=out_nfev,
+        n_collision_checks=out_checks,
+        converged=out_ok,
+        T_hwrist_rwrist=rTh,
+        meta={
+            "weights": list(config.weights),
+            "smoothness_unit": config.smoothness_unit,
+            "max_nfev": config.max_nfev,
+            "steps_in_collision": int(np.sum(out_d[:, 5] > 0)) if is_free is not None else None,
+        },
+    )
+    log.info(
+        "retargeted %d steps: fingertip RMSE %.2f mm, %d evaluations, %d collision checks",
+        n,
+        result.rmse_mm,
+        int(out_nfev.sum()),
+        int(out_checks.sum()),
+    )
+    return result
+
+
+def retarget_demonstration(
+    demo,
+    is_free: IsFree | None = None,
+    config: RetargetConfig | None = None,
+    T_hwrist_rwrist: np.ndarray | None = None,
+    progress: bool = False,
+) -> RetargetResult:
+    """Retarget a :class:`retarget.demonstration.Demonstration` to the SAH (virtual fingers, then per step).
+
+    Args:
+        demo: the demonstration (its recorded, noisy ``T_object_wrist`` and ``joints`` are used).
+        is_free: d6's collision check of the SAH against the object and the table, q (19,) in the object
+            frame; None drops d6 (logged as a warning).
+        config: :class:`RetargetConfig`.
+        T_hwrist_rwrist: rT_h; default :func:`palm_alignment`.
+        progress: tqdm progress bar over the steps.
+    """
+    config = config or RetargetConfig()
+    if is_free is None:
+        log.warning("retargeting %s without a collision check: d6 = 0", demo.object)
+    vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
+    log.info("%s: %s", demo.object, vf.describe())
+    targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf)
+    result = retarget_fingertips(
+        targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,
+        progress=progress,
+    )  # fmt: skip
+    meta = dict(result.meta)
+    meta.update({"demonstration": demo.path, "object": demo.object, "grasp_type": demo.grasp_type})
+    return RetargetResult(**{**result.__dict__, "virtual_fingers": vf, "meta": meta})

@@ -1,0 +1,197 @@
+"""Retargeting: a demonstration the SAH can reproduce exactly is recovered; Sigma_r; d1..d7; the CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from assets.errors import InputError
+from retarget import lie, sah
+from retarget.retargeting import (
+    RetargetConfig,
+    fingertip_cov_to_config,
+    palm_alignment,
+    retarget_fingertips,
+    step_costs,
+)
+from retarget.trajectory import Trajectory
+
+#: Fingertip error of a retargeted trajectory that the SAH can follow exactly [mm].
+RECOVERY_TOL_MM = 0.5
+#: Same, when a collision constraint moves the wrist off the demonstrated one [mm].
+CONSTRAINED_TOL_MM = 1.0
+#: Relative tolerance of J Sigma_r J^T against the fingertip covariance.
+COV_RTOL = 1e-8
+
+
+def sah_trajectory(n: int = 12, seed: int = 0):
+    """A smooth SAH motion: wrist on an SE(3) line, joints from open towards a random closure."""
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    j0 = sah.rest_joints()
+    j1 = j0.copy()
+    lo, hi = sah.JOINT_LIMITS[:, 0] + 0.05, sah.JOINT_LIMITS[:, 1] - 0.05
+    j1[1:] = np.clip(j0[1:] + np.deg2rad(rng.uniform(5.0, 30.0, 12)), lo[1:], hi[1:])
+    for i in (1, 4, 7, 10):  # abductions
+        j1[i] = np.deg2rad(rng.uniform(-10.0, 10.0))
+    joints = j0 + (j1 - j0) * s  # thumb base stays at the rest pose's 90 deg (IK keeps it)
+    xi0 = np.array([0.3, -0.2, 0.1, 0.0, 0.05, -0.25])
+    xi1 = np.array([0.2, -0.1, 0.05, 0.0, 0.03, -0.22])
+    T_object_wrist = lie.se3_exp(xi0 + (xi1 - xi0) * s)
+    return T_object_wrist, joints, sah.fingertip_positions_in(T_object_wrist, joints)
+
+
+def test_recovers_a_trajectory_the_sah_can_follow():
+    T, joints, tips = sah_trajectory()
+    res = retarget_fingertips(tips, T, T_hwrist_rwrist=np.eye(4), joints0=joints[0])
+    got = sah.fingertip_positions_in(res.T_object_wrist, res.joints)
+    err_mm = 1e3 * np.max(np.linalg.norm(got - tips, axis=-1))
+    assert err_mm < RECOVERY_TOL_MM, f"max fingertip error {err_mm:.3f} mm"
+    assert np.max(res.fingertip_error_mm) < RECOVERY_TOL_MM
+    assert res.rmse_mm < RECOVERY_TOL_MM
+    assert np.all(res.joints >= sah.JOINT_LIMITS[:, 0] - 1e-12)
+    assert np.all(res.joints <= sah.JOINT_LIMITS[:, 1] + 1e-12)
+    # With all four fingertips reachable the wrist is redundant: only w5 (0.1 per mm) pulls it to the
+    # demonstrated one while d7 (10 per rad of joint change from the previous step) holds it where it
+    # was, so the greedy per-step optimum drifts (31 mm measured); it must stay bounded.
+    d_wrist_mm = 1e3 * np.max(np.linalg.norm(res.T_object_wrist[:, :3, 3] - T[:, :3, 3], axis=-1))
+    assert d_wrist_mm < 50.0, f"wrist {d_wrist_mm:.1f} mm off"
+    assert res.q.shape == (len(T), 19)
+
+
+def test_collision_term_moves_the_wrist_out_of_a_forbidden_region():
+    T, joints, tips = sah_trajectory(n=6, seed=1)
+    # A wall 4 mm inside the demonstrated wrist positions: the wrist must stay on the x <= x_max side.
+    x_max = float(T[:, 0, 3].min()) - 0.004
+
+    def is_free(q):
+        assert q.shape == (19,)
+        return q[0] <= x_max
+
+    res = retarget_fingertips(tips, T, np.eye(4), is_free=is_free, joints0=joints[0])
+    assert np.all(res.distances[:, 5] == 0.0), "a step ended in collision"
+    assert np.all(res.T_object_wrist[:, 0, 3] <= x_max)
+    assert np.max(res.fingertip_error_mm) < CONSTRAINED_TOL_MM, res.fingertip_error_mm.max()
+    assert np.all(res.n_collision_checks <= res.nfev)
+    assert res.meta["steps_in_collision"] == 0
+
+
+def test_sigma_r_is_symmetric_psd_and_maps_back_to_the_fingertip_covariance():
+    T, joints, tips = sah_trajectory(n=3, seed=2)
+    far = tips.copy()
+    far[:, 0] += [0.0, 0.0, 0.2]  # the thumb target is out of reach: a non-zero error
+    res = retarget_fingertips(far, T, np.eye(4), joints0=joints[0], config=RetargetConfig(max_nfev=80))
+    C = res.cov_retarget
+    assert C.shape == (3, 19, 19)
+    assert np.all(res.fingertip_rmse_mm > 1.0)
+    np.testing.assert_allclose(C, np.swapaxes(C, -1, -2), rtol=0, atol=1e-15)
+    eig = np.linalg.eigvalsh(C)
+    assert eig.min() > -1e-12 * eig.max()
+    assert np.all(np.sum(eig > 1e-9 * eig.max(axis=-1, keepdims=True), axis=-1) <= 12)  # degenerate
+    # J Sigma_r J^T is the isotropic fingertip covariance mse / 3 * I_12 (J has full row rank 12).
+    mse = (res.fingertip_rmse_mm * 1e-3) ** 2
+    J = sah.fingertip_jacobian(res.T_object_wrist, res.joints)
+    back = J @ C @ np.swapaxes(J, -1, -2)
+    expected = (mse / 3)[:, None, None] * np.eye(12)
+    assert np.max(np.abs(back - expected)) < COV_RTOL * mse.max()
+    direct = fingertip_cov_to_config(res.T_object_wrist, res.joints, mse)
+    np.testing.assert_allclose(direct, C, rtol=0, atol=1e-12 * mse.max())
+
+
+def test_step_costs_by_hand():
+    joints = sah.rest_joints()
+    T = lie.make_pose(lie.so3_exp([0.0, 0.0, np.deg2rad(5.0)]), [0.01, 0.0, 0.0])
+    tips = sah.fingertip_positions_in(T, joints)
+    targets = tips + np.array([[0.002, 0, 0], [0, 0.001, 0], [0, 0, 0], [0, 0, 0.003]])
+    prev = joints.copy()
+    prev[5] += np.deg2rad(2.0)
+    deg = RetargetConfig(smoothness_unit="deg")
+    c = step_costs(T, joints, targets, np.eye(4), prev, collision_free=False, config=deg)
+    np.testing.assert_allclose(c.d, [2.0, 1.0, 0.0, 3.0, 10.0 + 5.0, 1.0, 2.0], atol=1e-9)
+    assert c.total == pytest.approx(3 * 2 + 1 + 0 + 3 + 0.1 * 15 + 10000 + 10 * 2)
+    rad = step_costs(T, joints, targets, np.eye(4), None, collision_free=True, config=RetargetConfig())
+    assert rad.d[5] == 0.0 and rad.d[6] == 0.0  # first step: no smoothness term
+
+
+def test_palm_alignment_keeps_the_axes():
+    T = palm_alignment()
+    np.testing.assert_allclose(T[:3, :3], np.eye(3))
+    assert -0.08 < T[2, 3] < 0.0  # the larger SAH palm sits further back along the fingers
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"weights": (1, 2, 3)}, "weights"),
+        ({"smoothness_unit": "grad"}, "smoothness_unit"),
+        ({"max_nfev": 0}, "max_nfev"),
+    ],
+)
+def test_invalid_config(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        RetargetConfig(**kwargs)
+
+
+def test_invalid_targets():
+    with pytest.raises(InputError, match="expected targets"):
+        retarget_fingertips(np.zeros((3, 5, 3)), np.tile(np.eye(4), (3, 1, 1)), np.eye(4))
+    with pytest.raises(InputError, match="finite"):
+        retarget_fingertips(np.full((2, 4, 3), np.nan), np.tile(np.eye(4), (2, 1, 1)), np.eye(4))
+
+
+# --- the CLI -----------------------------------------------------------------------------------------
+
+
+def _tiny_demo(path):
+    """A 3-step demonstration of the ham can with the open human hand well above the object."""
+    from retarget.demonstration import Demonstration, default_object_prior
+
+    n = 3
+    T = np.tile(lie.make_pose(lie.so3_exp([np.pi, 0.0, 0.0]), [0.0, 0.0, 0.45]), (n, 1, 1))
+    T[:, 2, 3] -= 0.01 * np.arange(n)
+    mu, cov = default_object_prior()
+    demo = Demonstration(
+        T_object_wrist=T,
+        joints=np.zeros((n, 20)),
+        t_s=np.arange(n) / 20.0,
+        object="ham",
+        grasp_type="precision",
+        T_world_object_mean=mu,
+        cov_object=cov,
+    )
+    demo.save(path)
+    return demo
+
+
+def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
+    from planning.cli import main
+
+    _tiny_demo(tmp_path / "tiny.npz")
+    out = tmp_path / "out" / "tiny.traj.npz"
+    status = main(
+        ["retarget", str(tmp_path / "tiny.npz"), "-o", str(out), "--max-nfev", "40", "--no-progress"]
+    )
+    assert status == 0
+    traj = Trajectory.load(out)
+    assert traj.num_steps == 3 and traj.object == "ham" and traj.grasp_type == "precision"
+    assert traj.dt_s == pytest.approx(0.05)
+    assert "virtual_fingers" in traj.meta and traj.meta["seed"] == 0
+    assert sorted(p.name for p in out.parent.iterdir()) == ["tiny.traj.npz"]  # no temporary left behind
+    line = capsys.readouterr().out.strip()
+    assert "fingertip RMSE" in line and "steps in collision 0" in line
+
+
+def test_cli_errors_cleanly_on_a_bad_demonstration(tmp_path, capsys):
+    from planning.cli import main
+
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not an archive")
+    out = tmp_path / "x.traj.npz"
+    assert main(["retarget", str(bad), "-o", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "bad.npz" in err[0]
+    assert not out.exists()
+    assert main(["retarget", "no_such_demo", "-o", str(out)]) == 2
+    assert "unknown demonstration" in capsys.readouterr().err
+    assert main(["retarget", str(bad), "-o", str(tmp_path / "x.npz")]) == 2
+    assert ".traj.npz" in capsys.readouterr().err
