@@ -23,7 +23,8 @@ Every field has the paper's default (or a documented choice where the paper is s
     constraint_std_mm: 5.0                # R_t = constraint_std^2
     activation_distance_mm: 30.0          # constrain only steps with phi(tau_r(t)) below this
     constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
-    gradient_step: 1.0e-5                 # central-difference step of grad phi in the 19-D tangent [rad, m]
+    gradient_step: 1.0e-3                 # central-difference step of grad phi in the 19-D tangent [rad, m];
+                                          # pybullet distances are noisy at ~1e-6 m: 1e-5 did not converge
     # relinearization loop (section VI) and the Gauss-Newton solve inside it
     max_iterations: 20
     mean_tolerance: 1.0e-6                # stop when marginal means move less than this [rad, m]
@@ -74,7 +75,7 @@ class VariationParams:
     constraint_std_mm: float = 5.0
     activation_distance_mm: float = 30.0
     constraint_delta_variance: float = 1e-10
-    gradient_step: float = 1e-5
+    gradient_step: float = 1e-3
     max_iterations: int = 20
     mean_tolerance: float = 1e-6
     gauss_newton_max_iterations: int = 100

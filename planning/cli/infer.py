@@ -1,0 +1,61 @@
+"""``pbdgrasp infer TRAJ [--scene S] [--params P.yaml] -o MODEL.model.npz``: the variation model (paper V-VI).
+
+Without ``--scene`` the object prior is the trajectory's and there are no constraint factors. With it, the
+object prior is the scene's object pose and localization covariance, and the signed distance of the hand to
+the scene's table and obstacles (pybullet closest points) is the constraint phi of the linearized constraint
+factors (see :mod:`inference.model`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from inference import VariationParams, solve
+from retarget.lie import q_from_pose
+from retarget.trajectory import Trajectory
+
+NAME = "infer"
+HELP = "learn the variation model (marginals P(X_t | O)) from a retargeted trajectory"
+ORDER = 40
+
+
+def add_arguments(p) -> None:
+    p.add_argument("trajectory", metavar="TRAJ", help="retargeted trajectory (.traj.npz)")
+    p.add_argument("--scene", help="scene name or YAML file: object prior and constraint factors")
+    p.add_argument("--params", metavar="P.yaml", help="parameter file (see inference/params.py)")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.model.npz", help="model file to write")
+
+
+def run(args) -> int:
+    start = time.perf_counter()
+    traj = Trajectory.load(args.trajectory)
+    params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
+    if args.scene:
+        from planning.scene import load_scene
+        from planning.world import World
+
+        scene = load_scene(args.scene)
+        with World(scene) as world:
+
+            def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
+                return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
+
+            model = solve(
+                traj,
+                params,
+                T_world_object=scene.T_world_object,
+                cov_object=scene.cov_object,
+                constraint_fn=signed_distance,
+            )
+    else:
+        model = solve(traj, params)
+    model.save(args.output)
+    status = "converged" if model.converged else "NOT converged"
+    print(
+        f"{args.output}: T = {model.num_steps}, {int(model.constrained.sum())} constrained steps, "
+        f"{model.iterations} iteration(s) {status}, solve {model.solve_time_s * 1e3:.0f} ms, "
+        f"total {(time.perf_counter() - start) * 1e3:.0f} ms"
+    )
+    return 0
