@@ -37,6 +37,7 @@ import assets
 
 from . import lie
 from .demonstration import FINGERS, RATE_HZ, Demonstration, default_object_prior
+from .virtual_fingers import virtual_fingers_of
 
 __all__ = [
     "Strategy",
@@ -59,9 +60,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: Radius of each finger's sample spheres (and its fingertip sphere) [m].
-FINGER_RADIUS_M = {"thumb": 0.0105, "index": 0.009, "middle": 0.009, "ring": 0.0085, "little": 0.008}
+FINGER_RADIUS_M = {"thumb": 0.009, "index": 0.008, "middle": 0.0085, "ring": 0.008, "little": 0.0075}
 #: Half the palm thickness: radius of the palm sample spheres [m].
-PALM_RADIUS_M = 0.013
+PALM_RADIUS_M = 0.014
 CONTACT_TOL_M = 0.002
 PENETRATION_TOL_M = 0.002
 PREGRASP_DISTANCE_M = 0.15
@@ -331,11 +332,11 @@ def _strategies() -> dict[str, Strategy]:
         _frame(down, (1.0, 0.0, 0.0)),
         np.array([0.0, 0.06, 0.17]),
         {
-            "thumb": _cyl(0.042, 95, 0.075),
-            "index": _cyl(0.042, 305, 0.075),
-            "middle": _cyl(0.042, 265, 0.075),
-            "ring": _cyl(0.042, 228, 0.075),
-            "little": _cyl(0.042, 208, 0.075),
+            "thumb": _cyl(0.042, 95, 0.08),
+            "index": _cyl(0.042, 325, 0.08),
+            "middle": _cyl(0.042, 285, 0.08),
+            "ring": _cyl(0.042, 248, 0.08),
+            "little": _cyl(0.042, 226, 0.08),
         },
         np.array([0.0, 0.0, 1.0]),
     )
@@ -346,13 +347,13 @@ def _strategies() -> dict[str, Strategy]:
         "power",
         "wrapped from the side: palm on the can, fingers around it, thumb wrapped the other way",
         _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.07, 0.02, 0.10]),
+        np.array([-0.054, 0.055, 0.11]),
         {
             "thumb": _cyl(0.039, 110, 0.16),
-            "index": _cyl(0.039, 345, 0.14),
-            "middle": _cyl(0.039, 5, 0.12),
-            "ring": _cyl(0.039, 330, 0.10),
-            "little": _cyl(0.039, 322, 0.08),
+            "index": _cyl(0.039, 315, 0.14),
+            "middle": _cyl(0.039, 25, 0.12),
+            "ring": _cyl(0.039, 318, 0.10),
+            "little": _cyl(0.039, 315, 0.08),
         },
         side,
         palm_gap_m=0.002,
@@ -364,13 +365,13 @@ def _strategies() -> dict[str, Strategy]:
         "power",
         "from the side: palm on the narrow face, fingers wrapped onto one wide face, thumb on the other",
         _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.08, 0.02, 0.08]),
+        np.array([-0.065, 0.05, 0.07]),
         {
-            "thumb": (-0.02, 0.032, 0.11),
-            "index": (-0.01, -0.032, 0.105),
-            "middle": (-0.005, -0.032, 0.085),
-            "ring": (-0.025, -0.032, 0.065),
-            "little": (-0.03, -0.032, 0.048),
+            "thumb": (-0.035, 0.03, 0.1),
+            "index": (-0.032, -0.032, 0.1),
+            "middle": (0.0, -0.032, 0.08),
+            "ring": (-0.012, -0.032, 0.06),
+            "little": (-0.018, -0.032, 0.042),
         },
         side,
         palm_gap_m=0.002,
@@ -394,6 +395,7 @@ class GraspReport:
         contact_normals: (5, 3) outward surface normals at the fingertips (object frame).
         normal_angle_deg: (4, 4) angles between the contact normals of index, middle, ring, little.
         closest_pair: the two opposing fingers with the most similar contact normals.
+        virtual_fingers: ``retarget.virtual_fingers.virtual_fingers_of`` on the final joints, described.
     """
 
     object: str
@@ -403,6 +405,7 @@ class GraspReport:
     contact_normals: np.ndarray
     normal_angle_deg: np.ndarray
     closest_pair: tuple[str, str]
+    virtual_fingers: str = ""
 
 
 def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.ndarray):
@@ -443,7 +446,7 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
         ]
         if strategy.palm_gap_m is not None:
             palm = sd[samples.owner == 5]
-            r.append(np.atleast_1d((palm.min() - strategy.palm_gap_m) / 0.003))
+            r.append(np.atleast_1d((palm.min() - strategy.palm_gap_m) / 0.001))
         return np.concatenate(r)
 
     x0 = np.concatenate([np.zeros(3), strategy.p_object_wrist, pref])
@@ -454,6 +457,31 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
     )
     log.debug("%s: fit cost %.3g after %d evaluations", strategy.object, sol.cost, sol.nfev)
     return unpack(sol.x)
+
+
+def _refit_finger(
+    k: int, strategy: Strategy, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, samples: HandSamples
+) -> np.ndarray:
+    """Re-fit one finger's 4 joints (wrist and other fingers fixed) with its fingertip on its target."""
+    hand = _hand()
+    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
+    f = FINGERS[k]
+    idx = np.array([i for i, nm in enumerate(hand.JOINT_NAMES) if nm.startswith(f + "_")])
+    c, n = dist.closest(np.array([strategy.targets[f]]))
+    goal = c[0] + n[0] * FINGER_RADIUS_M[f]
+    mine = samples.owner == k
+
+    def residuals(x):
+        Jx = J.copy()
+        Jx[idx] = x
+        pts, centres = sample_points(Jx)
+        sd = dist.signed(_to_object(T, pts[mine])) - samples.radius[mine]
+        return np.concatenate([(_to_object(T, centres[k]) - goal) / 0.002, np.maximum(0.0, -sd) / 0.0005])
+
+    sol = least_squares(residuals, J[idx], bounds=(limits[idx, 0], limits[idx, 1]), max_nfev=200)
+    out = J.copy()
+    out[idx] = sol.x
+    return out
 
 
 def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, samples: HandSamples):
@@ -495,8 +523,7 @@ def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, sa
                 if at(s)[1].min() <= 0.0:
                     hit = s
                     break
-            if hit is None:
-                J = at(grid[-1])[0]
+            if hit is None:  # closing never reaches the object: keep the finger where it was
                 break
             a, b = hit - 0.01, hit
             for _ in range(30):
@@ -569,6 +596,13 @@ def generate(
     for k, f in enumerate(FINGERS):
         if f in st.targets:
             J = _close_finger(k, T, J, dist, samples)
+    _, gaps = _penetration(dist, T, J, samples.radius)
+    for _ in range(3):  # a finger whose closing missed the object: aim it, then close again
+        for k, f in enumerate(FINGERS):
+            if f in st.targets and abs(gaps[k]) > 0.5 * CONTACT_TOL_M:
+                log.debug("%s: %s missed by %.1f mm after closing; re-fitting it", name, f, gaps[k] * 1e3)
+                J = _close_finger(k, T, _refit_finger(k, st, T, J, dist, samples), dist, samples)
+        _, gaps = _penetration(dist, T, J, samples.radius)
     sd, gaps = _penetration(dist, T, J, samples.radius)
     contact = [k for k, f in enumerate(FINGERS) if f in st.targets]
     if np.abs(gaps[contact]).max() > CONTACT_TOL_M or -sd.min() > PENETRATION_TOL_M:
@@ -594,6 +628,7 @@ def generate(
         normals,
         ang,
         (FINGERS[1 + min(i, j)], FINGERS[1 + max(i, j)]),
+        virtual_fingers_of(J).describe(),
     )
     dt = 1.0 / RATE_HZ
     tau = NOISE["correlation_time_s"]

@@ -5,9 +5,8 @@ import pytest
 
 import assets
 from retarget import demo_generator as gen
+from retarget import human_hand as hand
 from retarget.demonstration import Demonstration
-
-hand = pytest.importorskip("retarget.human_hand")
 
 CONTACT_TOL_MM = 2.0  # fingertip sphere to surface, at the last step
 PENETRATION_TOL_MM = 2.0  # any finger or palm sample, at every step

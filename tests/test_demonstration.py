@@ -5,10 +5,9 @@ import pytest
 import yaml
 
 from assets.errors import InputError
+from retarget import human_hand as hand
 from retarget.demonstration import Demonstration, default_object_prior
 from retarget.lie import se3_exp
-
-hand = pytest.importorskip("retarget.human_hand")
 
 
 def make_demo(n=6, rng=None, **over):

@@ -49,6 +49,6 @@ def run(args) -> int:
             f"{name}: {demo.num_steps} steps ({demo.duration_s:.2f} s, {demo.grasp_type}), fingertip gaps "
             f"{', '.join(f'{g:+.2f}' for g in report.tip_gap_mm)} mm, max penetration "
             f"{report.max_penetration_mm:.2f} mm (trajectory {report.max_penetration_trajectory_mm:.2f} mm), "
-            f"closest normals {'+'.join(report.closest_pair)} -> {path}"
+            f"{report.virtual_fingers} -> {path}"
         )
     return 0
