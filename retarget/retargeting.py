@@ -92,7 +92,9 @@ class RetargetConfig:
             multiplied by each factor in turn (until one ends collision-free), keeping the best result:
             a local search started inside the +w6 plateau with the other terms at their minimum only
             contracts and never sees the free region (our addition; the paper only says w6 is finite
-            "to allow for the traversal of forbidden areas").
+            "to allow for the traversal of forbidden areas"). Off by default: on the ham demonstration
+            (4, 16) leaves 4 of 61 steps colliding but pulls the hand off the grasp (RMSE 27.3 mm),
+            none leaves 12 colliding (fingers on the object at the end) with an RMSE of 7.0 mm.
         n_virtual: opposing virtual fingers, l - 1 = 3 for the SAH.
         adjacent_only: virtual fingers group neighbouring fingers only.
     """
@@ -103,7 +105,7 @@ class RetargetConfig:
     step_pos_mm: float = 5.0
     xtol: float = 0.02
     max_nfev: int = 300
-    escape_factors: tuple[float, ...] = (4.0, 16.0)
+    escape_factors: tuple[float, ...] = ()
     n_virtual: int = 3
     adjacent_only: bool = True
 

@@ -68,7 +68,8 @@ def test_collision_term_moves_the_wrist_out_of_a_forbidden_region():
         assert q.shape == (19,)
         return q[0] <= x_max
 
-    res = retarget_fingertips(tips, T, np.eye(4), is_free=is_free, joints0=joints[0])
+    config = RetargetConfig(escape_factors=(4.0, 16.0))
+    res = retarget_fingertips(tips, T, np.eye(4), is_free=is_free, joints0=joints[0], config=config)
     assert np.all(res.distances[:, 5] == 0.0), "a step ended in collision"
     assert np.all(res.T_object_wrist[:, 0, 3] <= x_max)
     assert np.max(res.fingertip_error_mm) < CONSTRAINED_TOL_MM, res.fingertip_error_mm.max()
