@@ -12,7 +12,8 @@ than its 13 mm fingertip radius. ``q_a`` itself is assumed free (it is a tree no
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+
+from retarget.lie import quat_from_rotvec, slerp_rotvec
 
 __all__ = ["CollisionChecker"]
 
@@ -47,8 +48,8 @@ class CollisionChecker:
         """The configurations checked along the edge, excluding ``q_a`` and including ``q_b``: (n, 19)."""
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
-        rots = Rotation.from_rotvec(np.stack([q_a[3:6], q_b[3:6]]))
-        angle = (rots[0].inv() * rots[1]).magnitude()
+        qa, qb = quat_from_rotvec(q_a[3:6]), quat_from_rotvec(q_b[3:6])
+        angle = 2.0 * np.arccos(min(abs(float(qa @ qb)), 1.0))
         n = int(
             np.ceil(
                 max(
@@ -61,7 +62,7 @@ class CollisionChecker:
         )
         s = np.arange(1, n + 1) / n
         out = q_a + s[:, None] * (q_b - q_a)
-        out[:, 3:6] = Slerp([0.0, 1.0], rots)(s).as_rotvec()
+        out[:, 3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)
         return out
 
     def is_edge_free(self, q_a: np.ndarray, q_b: np.ndarray) -> bool:

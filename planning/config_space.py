@@ -15,7 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+
+from retarget.lie import quat_from_rotvec, slerp_rotvec
 
 __all__ = ["EuclideanSpace", "HandConfigSpace"]
 
@@ -59,7 +60,7 @@ class HandConfigSpace:
 
     def features(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(q)
-        quat = Rotation.from_rotvec(q[:, 3:6]).as_quat()
+        quat = quat_from_rotvec(q[:, 3:6])
         return np.concatenate([q[:, :3] / self.position_step_m, quat, q[:, 6:] / self.joint_step_rad], axis=1)
 
     def distance_to(self, features: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -79,6 +80,5 @@ class HandConfigSpace:
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
         out = q_a + s * (q_b - q_a)
-        rots = Rotation.from_rotvec(np.stack([q_a[3:6], q_b[3:6]]))
-        out[3:6] = Slerp([0.0, 1.0], rots)(s).as_rotvec()
+        out[3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)[0]
         return out

@@ -23,12 +23,18 @@ __all__ = ["plan_ompl"]
 _N_JOINTS = 13
 
 
-def _import_ompl():
+_SEEDED = []  # OMPL's RNG is process-global and accepts a seed only before its first draw
+
+
+def _import_ompl(seed: int):
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
 
-    ou.setLogLevel(ou.LogLevel.LOG_WARN)
+    ou.setLogLevel(ou.LogLevel.LOG_ERROR)
+    if not _SEEDED:
+        ou.RNG.setSeed(seed)
+        _SEEDED.append(seed)
     return ob, og
 
 
@@ -55,7 +61,9 @@ def plan_ompl(
         quality_fn: phi_o, ``q -> (quality, payload)``.
         wrist_bounds_m: ``(low (3,), high (3,))`` of the wrist position.
         joint_limits: (13, 2) [rad].
-        rng: randomness of the goal sampler (OMPL's own uniform sampler uses OMPL's RNG, seeded from it).
+        rng: randomness of the goal sampler. OMPL's own uniform sampler uses OMPL's process-global RNG,
+            seeded from ``rng`` once per process: OMPL runs are reproducible only as a first run in a
+            fresh process.
         time_limit_s: OMPL's solve time.
         quality_threshold: epsilon.
         range_units: RRTConnect's range as a fraction of the space's maximum extent.
@@ -65,10 +73,7 @@ def plan_ompl(
     Returns:
         A :class:`PlanResult`; ``nodes`` is the number of vertices of OMPL's planner data.
     """
-    ob, og = _import_ompl()
-    from ompl import util as ou
-
-    ou.RNG.setSeed(int(rng.integers(1, 2**31 - 1)))
+    ob, og = _import_ompl(int(rng.integers(1, 2**31 - 1)))
     lo, hi = (np.asarray(b, dtype=float) for b in wrist_bounds_m)
     joint_limits = np.asarray(joint_limits, dtype=float)
 

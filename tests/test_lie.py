@@ -47,3 +47,21 @@ def test_pose_q_round_trip():
         np.broadcast_to(np.eye(4), (10, 4, 4)),
         atol=1e-12,
     )
+
+
+def test_quaternion_helpers_and_slerp_match_scipy():
+    from scipy.spatial.transform import Rotation, Slerp
+
+    rng = np.random.default_rng(4)
+    r = rng.normal(size=(50, 3))
+    r[0] = 0.0
+    r[1] = [np.pi - 1e-9, 0, 0]
+    quat = lie.quat_from_rotvec(r)
+    ref = Rotation.from_rotvec(r).as_quat()
+    ref *= np.sign(ref[:, 3:] + 1e-300) * np.sign(quat[:, 3:] + 1e-300)
+    np.testing.assert_allclose(quat, ref, atol=1e-12)
+    np.testing.assert_allclose(lie.so3_exp(lie.rotvec_from_quat(quat)), lie.so3_exp(r), atol=1e-9)
+    s = np.linspace(0, 1, 7)
+    for a, b in zip(r[2:10], r[10:18], strict=True):
+        expected = Slerp([0, 1], Rotation.from_rotvec([a, b]))(s).as_matrix()
+        np.testing.assert_allclose(lie.so3_exp(lie.slerp_rotvec(a, b, s)), expected, atol=1e-9)

@@ -1,0 +1,236 @@
+"""A grasp-planning problem in one scene, and the three planners that solve it (paper VII-VIII).
+
+:class:`GraspPlanner` owns one pybullet :class:`~planning.world.World` (its own client), the collision
+checker, the hand closer (phi_o) and the learned strategies, and runs one planning query per call:
+
+* ``learned``: our :func:`~planning.rrt_connect.rrt_connect` with samples from the mixture P(Y)
+  (probability ``beta`` uniform, else a random time step's marginal of a random strategy); goal samples
+  are the draws of a strategy's last time step;
+* ``baseline``: the paper's "simple RRT": the same tree code with single-step EXTEND (no CONNECT) and
+  uniform samples, drawing its target from N(b_T, B_T) with probability ``goal_probability`` (0.1); a
+  goal target is reached when the nearest node is within one step of it;
+* ``ompl``: OMPL's RRTConnect (:func:`~planning.ompl_peer.plan_ompl`) from the same roots, with a goal
+  region of N(b_T, B_T) draws whose quality reaches the threshold.
+
+All three root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
+and use the same goal test: phi_o >= ``quality_threshold`` (0.05).
+
+The strategies' marginals P(X_t | O) live in the object frame; their object prior P(O) is replaced by
+the scene's localization N(mu_o, Sigma_o), so a strategy learned on one object plans on another.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from assets.errors import InputError
+from inference.model import VariationModel
+from inference.sampler import MixtureSampler, sample
+from retarget.sah import JOINT_LIMITS
+
+from .autograsp import AutoGraspConfig, HandCloser
+from .collision import CollisionChecker
+from .config_space import HandConfigSpace
+from .ompl_peer import plan_ompl
+from .rrt_connect import PlannerConfig, PlanResult, rrt_connect
+from .scene import Scene, load_scene
+from .world import World
+
+__all__ = ["PLANNERS", "PlanningSettings", "GraspPlanner"]
+
+log = logging.getLogger(__name__)
+
+PLANNERS = ("learned", "baseline", "ompl")
+
+
+@dataclass(frozen=True)
+class PlanningSettings:
+    """Settings of one planning query (the paper's values by default).
+
+    Attributes:
+        planner: ``learned``, ``baseline`` or ``ompl``.
+        beta: probability of the uniform strategy in P(Y) (learned planner).
+        goal_probability: probability of a N(b_T, B_T) target (baseline).
+        num_roots: start configurations drawn from N(b_1, B_1) (collision-free ones kept).
+        time_limit_s: budget of one query [s].
+        max_nodes: node limit of our tree.
+        quality_threshold: epsilon; phi_o >= it is a valid grasp.
+        sample_batch: draws of P(Y) per vectorized call.
+    """
+
+    planner: str = "learned"
+    beta: float = 0.05
+    goal_probability: float = 0.1
+    num_roots: int = 100
+    time_limit_s: float = 10.0
+    max_nodes: int = 50_000
+    quality_threshold: float = 0.05
+    sample_batch: int = 256
+
+    def __post_init__(self):
+        if self.planner not in PLANNERS:
+            raise InputError(f"planner: expected one of {', '.join(PLANNERS)}, found {self.planner!r}")
+        if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.goal_probability <= 1.0:
+            raise InputError("beta and goal_probability must be probabilities in [0, 1]")
+        if self.num_roots < 1 or self.time_limit_s <= 0 or self.max_nodes < 1 or self.sample_batch < 1:
+            raise InputError(f"num_roots, time_limit_s, max_nodes and sample_batch must be positive: {self}")
+
+
+class _Buffered:
+    """Turns a vectorized ``draw(n, rng) -> (q (n, 19), is_goal (n,))`` into ``sample_fn(rng)``."""
+
+    def __init__(self, draw, batch: int):
+        self.draw, self.batch = draw, batch
+        self.q = np.empty((0, 19))
+        self.goal = np.empty(0, dtype=bool)
+        self.i = 0
+
+    def __call__(self, rng: np.random.Generator) -> tuple[np.ndarray, bool]:
+        if self.i >= len(self.q):
+            self.q, self.goal = self.draw(self.batch, rng)
+            self.i = 0
+        self.i += 1
+        return self.q[self.i - 1], bool(self.goal[self.i - 1])
+
+
+class GraspPlanner:
+    """One scene, its learned strategies and a pybullet world; :meth:`plan` runs one query.
+
+    Args:
+        scene: a :class:`~planning.scene.Scene` or a scene name/path.
+        models: the learned strategies (at least one).
+        grasp_config: the hand-closing settings of phi_o.
+
+    Raises:
+        InputError: no models.
+    """
+
+    def __init__(self, scene: Scene | str, models: Sequence[VariationModel], grasp_config=None):
+        self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        if not models:
+            raise InputError("planning needs at least one learned strategy (a .model.npz)")
+        self.models = [
+            dataclasses.replace(
+                m, T_world_object_mean=self.scene.T_world_object, cov_object=self.scene.cov_object
+            )
+            for m in models
+        ]
+        self.world = World(self.scene)
+        self.checker = CollisionChecker(self.world)
+        self.closer = HandCloser(self.world, grasp_config or AutoGraspConfig())
+        self.space = HandConfigSpace()
+        self.bounds = self._wrist_bounds(margin_m=0.05)
+
+    def close(self) -> None:
+        self.world.close()
+
+    def __enter__(self) -> GraspPlanner:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- pieces --------------------------------------------------------------------------------------
+    def _wrist_bounds(self, margin_m: float) -> np.ndarray:
+        """(2, 3) box of the uniform samples: the scene's wrist bounds grown to hold every strategy's mean
+        wrist path (in this scene's object pose) with a margin, so roots and goals are inside it."""
+        lo, hi = np.array(self.scene.wrist_bounds_m, dtype=float)
+        for m in self.models:
+            p = (self.scene.T_world_object @ m.T_object_wrist_mean)[:, :3, 3]
+            lo = np.minimum(lo, p.min(axis=0) - margin_m)
+            hi = np.maximum(hi, p.max(axis=0) + margin_m)
+        return np.stack([lo, hi])
+
+    def draw_marginal(
+        self, k_from_end: int | None, n: int, rng: np.random.Generator, k: int = 0
+    ) -> np.ndarray:
+        """``n`` world-frame draws (n, 19) of step ``k`` (or of ``T_s - k_from_end``) of random strategies."""
+        which = rng.integers(len(self.models), size=n)
+        out = np.empty((n, 19))
+        for s, model in enumerate(self.models):
+            idx = np.flatnonzero(which == s)
+            if idx.size:
+                step = k if k_from_end is None else model.num_steps - k_from_end
+                out[idx] = sample(model, step, idx.size, rng, joint_limits=JOINT_LIMITS)
+        return out
+
+    def roots(self, rng: np.random.Generator, n: int, max_draws: int | None = None) -> np.ndarray:
+        """Up to ``n`` collision-free draws (R, 19) of N(b_1, B_1), the first marginal."""
+        max_draws = max_draws or 20 * n
+        kept: list[np.ndarray] = []
+        drawn = 0
+        while len(kept) < n and drawn < max_draws:
+            batch = self.draw_marginal(None, min(n, max_draws - drawn), rng, k=0)
+            drawn += len(batch)
+            kept.extend(q for q in batch if self.checker.is_free(q))
+        return np.array(kept[:n]).reshape(-1, 19)
+
+    def quality(self, q: np.ndarray):
+        """phi_o at ``q``: ``(quality, GraspResult)``."""
+        res = self.closer.close(q)
+        return res.quality, res
+
+    # -- planning ------------------------------------------------------------------------------------
+    def plan(self, rng: np.random.Generator, settings: PlanningSettings = PlanningSettings()) -> PlanResult:
+        """One planning query with a fresh tree; see the module docstring for the planners."""
+        checks_before = self.checker.checks
+        roots = self.roots(rng, settings.num_roots)
+        if len(roots) == 0:
+            return PlanResult(
+                False, "no collision-free start configuration in N(b_1, B_1)", 0.0, 0, 0.0, np.empty((0, 19))
+            )
+        lo, hi = self.bounds
+        if settings.planner == "ompl":
+            result = plan_ompl(
+                roots,
+                lambda r: self.draw_marginal(1, 1, r)[0],
+                self.checker.is_free,
+                self.quality,
+                (lo, hi),
+                JOINT_LIMITS,
+                rng,
+                time_limit_s=settings.time_limit_s,
+                quality_threshold=settings.quality_threshold,
+            )
+        else:
+            if settings.planner == "learned":
+                mixture = MixtureSampler(self.models, lo, hi, settings.beta, JOINT_LIMITS)
+
+                def draw(n, r):
+                    s = mixture.sample(n, r)
+                    return s.q, s.is_last & (s.strategy >= 0)
+
+            else:
+                uniform = MixtureSampler(self.models, lo, hi, 1.0, JOINT_LIMITS)
+
+                def draw(n, r):
+                    goal = r.random(n) < settings.goal_probability
+                    q = uniform.sample(n, r).q
+                    if goal.any():
+                        q[goal] = self.draw_marginal(1, int(goal.sum()), r)
+                    return q, goal
+
+            config = PlannerConfig(
+                time_limit_s=settings.time_limit_s,
+                max_nodes=settings.max_nodes,
+                quality_threshold=settings.quality_threshold,
+                connect=settings.planner == "learned",
+            )
+            result = rrt_connect(
+                roots,
+                _Buffered(draw, settings.sample_batch),
+                self.checker.is_edge_free,
+                self.quality,
+                self.space,
+                rng,
+                config,
+            )
+        extra = dict(
+            result.extra, roots=len(roots), collision_checks_total=self.checker.checks - checks_before
+        )
+        return dataclasses.replace(result, extra=extra)
