@@ -25,6 +25,12 @@ def add_arguments(p) -> None:
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
     p.add_argument("-o", "--output", required=True, help="output PNG")
+    p.add_argument(
+        "--demo", help="show a human demonstration (name or .npz) on its object; implies --hand human"
+    )
+    p.add_argument(
+        "--steps", default="0,-1", help="with --demo: comma-separated steps to show (default 0,-1)"
+    )
 
 
 def hover_q(world) -> np.ndarray:
@@ -74,6 +80,8 @@ def run(args) -> int:
 
     if args.width < 16 or args.height < 16 or args.width > 4096 or args.height > 4096:
         raise InputError(f"--width/--height: expected 16..4096 pixels, found {args.width} x {args.height}")
+    if args.demo:
+        return _run_demo(args)
     with World(args.scene, hand=args.hand) as world:
         q = load_q(args.q, hand=args.hand) if args.q else hover_q(world)
         views = ["side", "top"] if args.view == "both" else [args.view]
@@ -82,4 +90,37 @@ def run(args) -> int:
     rgb = np.concatenate(images, axis=1)
     atomic_write(args.output, lambda f: f.write(png_bytes(rgb)))
     print(f"wrote {args.output} ({rgb.shape[1]} x {rgb.shape[0]}); hand {'free' if free else 'IN COLLISION'}")
+    return 0
+
+
+def _run_demo(args) -> int:
+    """Render a demonstration's human hand (the recorded, noisy poses) at the chosen steps, side by side."""
+    from planning.world import World
+    from retarget.demonstration import Demonstration
+    from retarget.lie import q_from_pose
+
+    demo = Demonstration.load(args.demo)
+    try:
+        steps = [int(s) for s in args.steps.split(",") if s.strip()]
+    except ValueError:
+        raise InputError(f"--steps: expected comma-separated integers, found {args.steps!r}") from None
+    if not steps or any(not -demo.num_steps <= s < demo.num_steps for s in steps):
+        raise InputError(
+            f"--steps: expected steps in [-{demo.num_steps}, {demo.num_steps - 1}], found {steps}"
+        )
+    images = []
+    with World(args.scene, hand="human") as world:
+        if world.scene.object.name != demo.object:
+            raise InputError(
+                f"--demo {demo.object} is on another object than the scene's {world.scene.object.name}"
+            )
+        for step in steps:
+            T_world_wrist = world.scene.T_world_object @ demo.T_object_wrist[step]
+            q = np.concatenate([q_from_pose(T_world_wrist), demo.joints[step]])
+            images.append(
+                world.render(q, args.width, args.height, camera=args.view if args.view != "both" else "side")
+            )
+    rgb = np.concatenate(images, axis=1)
+    atomic_write(args.output, lambda f: f.write(png_bytes(rgb)))
+    print(f"wrote {args.output}: demonstration {demo.object} at steps {steps}")
     return 0
