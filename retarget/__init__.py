@@ -4,6 +4,7 @@ The public API grows with the package; see the README for the configuration and 
 """
 
 from . import human_hand, ik, kinematics, sah
+from .demonstration import Demonstration
 from .ik import finger_ik, hand_ik
 from .kinematics import HandModel
 from .lie import local, pose_from_q, q_from_pose, retract, se3_exp, se3_inverse, se3_log, so3_exp, so3_log
@@ -12,6 +13,7 @@ from .rosenbrock import RosenbrockResult, minimize_rosenbrock
 from .virtual_fingers import VirtualFingers, choose_virtual_fingers
 
 __all__ = [
+    "Demonstration",
     "HandModel",
     "finger_ik",
     "hand_ik",
