@@ -230,7 +230,9 @@ class GraspPlanner:
                 rng,
                 config,
             )
-        extra = dict(
-            result.extra, roots=len(roots), collision_checks_total=self.checker.checks - checks_before
+        # count configurations checked (roots and every edge's points), not edge queries
+        return dataclasses.replace(
+            result,
+            collision_checks=self.checker.checks - checks_before,
+            extra=dict(result.extra, roots=len(roots)),
         )
-        return dataclasses.replace(result, extra=extra)
