@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 import assets
 from assets.errors import InputError
 
-from ._pybullet import pb
+from ._pybullet import connect_direct, pb
 from .scene import Scene, load_scene
 
 __all__ = ["Contact", "World", "default_camera", "hand_joint_names", "hand_rest_joints"]
@@ -181,7 +181,7 @@ class World:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.hand = hand
         self._excluded = self_collision_excluded
-        self.client = pb.connect(pb.DIRECT)
+        self.client = connect_direct()
         try:
             self._build()
         except BaseException:
