@@ -1,0 +1,606 @@
+"""``pbdgrasp bench``: the figures the issues name, measured in one process (issue 9).
+
+Each measurement is a function returning a plain ``dict`` (JSON-ready); :func:`run_bench` runs them all and
+:func:`format_table` prints them. Timings use ``time.perf_counter`` and report the median of repeats unless
+said otherwise; they are figures of this machine (:func:`machine_info`), never asserted in tests.
+
+* inference: graph + Gauss-Newton + all conditional marginals of a synthetic T-step trajectory
+  (:func:`inference.model.solve`), and the marginals alone by ``gtsam.Marginals`` beside the dense
+  reference (the information matrix at the solution, ``hessian`` with an explicit ordering, inverted by
+  numpy), with the largest relative difference of the two as a check; T = 100 again with linearized
+  constraint factors (an analytic height constraint, so the figure is the graph's and not pybullet's);
+* samples per second of the mixture P(Y) (:class:`inference.sampler.MixtureSampler`, beta = 0.05);
+* collision: configurations (uniform in the ham scene's bounds) and edges (between consecutive P(Y) draws
+  of the ham strategy) checked per second;
+* quality: epsilon from four tetrahedral contacts (us) and a close-and-score at a hand-placed ham grasp (ms);
+* retargeting: seconds per step of the ham demonstration (its last steps, near the object, the costly ones);
+* planning: per scene and planner, success rate, median ETA of the solved trials, nodes, collision checks,
+  the ratios learned/OMPL and learned/baseline of the median ETAs, and the share of planning time spent in
+  pybullet collision checks and in the quality (phi_o); the rest is our own overhead (sampling, nearest
+  neighbours, bookkeeping). The learned strategies come from the real pipeline (demonstration ->
+  retargeting with ``retarget_max_nfev`` -> variation model with the scene's prior and signed-distance
+  constraints), cached under ``cache_dir`` by the SHA-256 of their inputs. Quick mode plans on the ham scene
+  only, with a strategy built in code (a top-down approach to the hand-placed grasp);
+* peak memory: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import logging
+import os
+import platform
+import resource
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+import assets
+from assets.errors import InputError
+
+__all__ = [
+    "BenchConfig",
+    "HAM_GRASP_Q",
+    "machine_info",
+    "synthetic_trajectory",
+    "bench_inference",
+    "bench_sampler",
+    "bench_collision",
+    "bench_quality",
+    "bench_retargeting",
+    "bench_planning",
+    "peak_memory",
+    "run_bench",
+    "format_table",
+]
+
+log = logging.getLogger(__name__)
+
+CACHE_VERSION = 1
+"""Bump to invalidate the cached bench strategies (a change of the pipeline's code)."""
+
+#: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.09), q (19,) [m, rad];
+#: the grasp of ``tests/test_autograsp.py``.
+HAM_GRASP_Q = (0.0231, 0.0267, 0.2922, -2.1117, 1.9064, 0.5296,
+               1.0593, 0.0, 0.1745, 0.1745, 0.0, 0.349, 0.1745,
+               0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745)  # fmt: skip
+
+PLANNING_SCENES = ("ham", "chips_between_cans", "jam_hole")
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """Settings of one bench run.
+
+    Attributes:
+        quick: tiny settings (seconds): small sizes, ham planning only with a strategy built in code.
+        trials: planning trials per scene and planner.
+        seed: the run's seed; every measurement gets its own spawned generator.
+        time_limit_s: budget of one planning query [s].
+        cache_dir: where the planning strategies are cached.
+        retarget_max_nfev: Rosenbrock evaluations per step when building the planning strategies.
+    """
+
+    quick: bool = False
+    trials: int = 3
+    seed: int = 0
+    time_limit_s: float = 10.0
+    cache_dir: Path = Path("results/cache/bench")
+    retarget_max_nfev: int = 100
+
+    def __post_init__(self):
+        if self.trials < 1:
+            raise InputError(f"trials: expected a count >= 1, found {self.trials}")
+        if self.seed < 0:
+            raise InputError(f"seed: expected >= 0, found {self.seed}")
+        if not self.time_limit_s > 0:
+            raise InputError(f"time_limit_s: expected > 0, found {self.time_limit_s}")
+        if self.retarget_max_nfev < 1:
+            raise InputError(f"retarget_max_nfev: expected >= 1, found {self.retarget_max_nfev}")
+        object.__setattr__(self, "cache_dir", Path(self.cache_dir))
+
+
+def _timed(fn, repeats: int) -> tuple[float, object]:
+    """Median wall time [s] of ``repeats`` calls of ``fn()`` and the last result."""
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def _version(dist: str) -> str:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def machine_info() -> dict:
+    """Platform, Python, CPU count and the CPU model name from ``/proc/cpuinfo``."""
+    model = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpu_count": os.cpu_count(),
+        "cpu_model": model,
+        "gtsam": _version("gtsam"),
+        "pybullet": _version("pybullet"),
+        "numpy": np.__version__,
+    }
+
+
+# -- inference -----------------------------------------------------------------------------------------
+def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
+    """A smooth T-step top-down approach on the ham scene with degenerate rank-6 Sigma_r(t).
+
+    Returns:
+        A :class:`retarget.trajectory.Trajectory` (T steps, precision grasp, the ham scene's prior).
+    """
+    from planning.scene import load_scene
+    from retarget import sah
+    from retarget.lie import pose_from_q, se3_inverse
+    from retarget.trajectory import Trajectory
+
+    scene = load_scene("ham")
+    q = np.array(HAM_GRASP_Q)
+    T_object_grasp = se3_inverse(scene.T_world_object) @ pose_from_q(q)
+    s = np.linspace(0.0, 1.0, num_steps)
+    s = 10 * s**3 - 15 * s**4 + 6 * s**5
+    T = np.repeat(T_object_grasp[None], num_steps, axis=0)
+    T[:, 2, 3] += 0.15 * (1.0 - s)
+    joints = (1.0 - s)[:, None] * sah.rest_joints() + s[:, None] * q[6:]
+    A = rng.normal(size=(num_steps, 19, 6)) * 0.003
+    cov = A @ np.swapaxes(A, 1, 2)
+    return Trajectory(
+        T,
+        joints,
+        cov,
+        np.full(num_steps, 6.5),
+        scene.T_world_object,
+        scene.cov_object,
+        0.05,
+        "ham",
+        "precision",
+    )
+
+
+def _dense_marginals(graph, values, n: int) -> np.ndarray:
+    """(T, 19, 19) marginals of (W_t, J_t) from the dense inverse of the information matrix."""
+    from inference.model import key_j, key_w
+
+    order = gtsam.Ordering()
+    for t in range(n):
+        order.push_back(key_w(t))
+        order.push_back(key_j(t))
+    info = graph.linearize(values).hessian(order)[0]
+    cov = np.linalg.inv(info)
+    idx = np.arange(n)[:, None] * 19 + np.arange(19)
+    return cov[idx[:, :, None], idx[:, None, :]]
+
+
+def bench_inference(
+    sizes=(25, 50, 100, 200), repeats: int = 3, rng: np.random.Generator | None = None
+) -> dict:
+    """Graph + solve + marginals per T, gtsam vs dense marginals, and T = 100 with constraint factors.
+
+    Returns:
+        ``{"rows": [{T, solve_ms, marginals_ms, dense_ms, dense_over_gtsam, max_rel_diff}], "constrained":
+        {T, solve_ms, iterations, constrained_steps}}``.
+    """
+    from inference.model import _conditional_marginals, build_graph, factor_covariances, initial_values, solve
+    from inference.params import VariationParams
+
+    rng = rng or np.random.default_rng(0)
+    params = VariationParams()
+    rows = []
+    for n in sizes:
+        traj = synthetic_trajectory(n, rng)
+        solve_s, model = _timed(lambda traj=traj: solve(traj, params), repeats)
+        mu_o = traj.T_world_object_mean
+        graph = build_graph(traj, params, factor_covariances(traj, params), mu_o, None, fixed_object=True)
+        values = gtsam.GaussNewtonOptimizer(graph, initial_values(traj, mu_o, fixed_object=True)).optimize()
+        marg_s, (_, _, cov_g) = _timed(
+            lambda g=graph, v=values, n=n, mu=mu_o: _conditional_marginals(g, v, mu, n), repeats
+        )
+        dense_s, cov_d = _timed(lambda g=graph, v=values, n=n: _dense_marginals(g, v, n), repeats)
+        rel = float(np.max(np.abs(cov_g - cov_d)) / np.max(np.abs(cov_d)))
+        rows.append(
+            {
+                "T": n,
+                "solve_ms": 1e3 * solve_s,
+                "marginals_ms": 1e3 * marg_s,
+                "dense_ms": 1e3 * dense_s,
+                "dense_over_gtsam": dense_s / marg_s,
+                "max_rel_diff": rel,
+            }
+        )
+    n = 100 if 100 in sizes else max(sizes)
+    traj = synthetic_trajectory(n, rng)
+    z_grasp_m = float((traj.T_world_object_mean @ traj.T_object_wrist[-1])[2, 3])
+
+    def height(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
+        # wrist height above a plane 25 mm below the grasp: active (< 30 mm) on the last steps
+        return float(T_world_wrist[2, 3] - z_grasp_m + 0.025)
+
+    solve_c, model = _timed(lambda: solve(traj, params, constraint_fn=height), repeats)
+    constrained = {
+        "T": n,
+        "solve_ms": 1e3 * solve_c,
+        "iterations": int(model.iterations),
+        "constrained_steps": int(np.sum(model.constrained)),
+    }
+    return {"rows": rows, "constrained": constrained}
+
+
+def bench_sampler(
+    model, n: int = 1_000_000, repeats: int = 3, rng: np.random.Generator | None = None
+) -> dict:
+    """Samples per second of P(Y) with one learned strategy and beta = 0.05."""
+    from inference.sampler import MixtureSampler
+    from planning.scene import load_scene
+
+    rng = rng or np.random.default_rng(0)
+    lo, hi = load_scene("ham").bounds_array
+    mixture = MixtureSampler([model], lo, hi, 0.05)
+    dt, _ = _timed(lambda: mixture.sample(n, rng), repeats)
+    return {"n": n, "samples_per_s": n / dt}
+
+
+# -- pybullet: collision, quality, retargeting -----------------------------------------------------------
+def bench_collision(
+    model, n_configs: int = 2000, n_edges: int = 200, rng: np.random.Generator | None = None
+) -> dict:
+    """Configurations and edges checked per second in the ham scene.
+
+    Configurations are uniform in the scene's wrist bounds and joint limits; edges join consecutive draws
+    of P(Y) (beta = 0.05) of ``model``, the planner's typical query.
+    """
+    from inference.sampler import MixtureSampler
+    from planning.collision import CollisionChecker
+    from planning.world import World
+    from retarget.sah import JOINT_LIMITS
+
+    rng = rng or np.random.default_rng(0)
+    with World("ham") as world:
+        checker = CollisionChecker(world)
+        lo, hi = world.scene.bounds_array
+        mixture = MixtureSampler([model], lo, hi, 1.0, JOINT_LIMITS)
+        qs = mixture.sample(n_configs, rng).q
+        t0 = time.perf_counter()
+        free = sum(checker.is_free(q) for q in qs)
+        dt_q = time.perf_counter() - t0
+        ys = MixtureSampler([model], lo, hi, 0.05, JOINT_LIMITS).sample(n_edges + 1, rng).q
+        checks0 = checker.checks
+        t0 = time.perf_counter()
+        for a, b in zip(ys[:-1], ys[1:], strict=True):
+            checker.is_edge_free(a, b)
+        dt_e = time.perf_counter() - t0
+        points = checker.checks - checks0
+    return {
+        "configs_per_s": n_configs / dt_q,
+        "us_per_config": 1e6 * dt_q / n_configs,
+        "free_fraction": free / n_configs,
+        "edges_per_s": n_edges / dt_e,
+        "configs_per_edge": points / n_edges,
+    }
+
+
+def bench_quality(repeats_epsilon: int = 200, repeats_close: int = 20) -> dict:
+    """epsilon from four tetrahedral contacts (us) and a close-and-score at :data:`HAM_GRASP_Q` (ms)."""
+    from planning.autograsp import HandCloser
+    from planning.grasp_quality import epsilon_l1
+    from planning.world import World
+
+    p = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float) / np.sqrt(3.0) * 0.04
+    normals = -p / np.linalg.norm(p, axis=1, keepdims=True)
+    eps_s, eps = _timed(lambda: epsilon_l1(p, normals, 0.6, np.zeros(3), 0.04), repeats_epsilon)
+    with World("ham") as world:
+        closer = HandCloser(world)
+        close_s, res = _timed(lambda: closer.close(np.array(HAM_GRASP_Q)), repeats_close)
+    return {
+        "epsilon_us": 1e6 * eps_s,
+        "epsilon_tetrahedron": float(eps),
+        "close_and_score_ms": 1e3 * close_s,
+        "ham_grasp_quality": float(res.quality),
+        "closing_steps": int(res.steps),
+    }
+
+
+def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
+    """Seconds per step of retargeting the last ``num_steps`` steps of the ham demonstration (with d6)."""
+    from planning.cli.retarget import object_frame_is_free
+    from planning.scene import load_scene
+    from planning.world import World
+    from retarget.demonstration import Demonstration
+    from retarget.retargeting import RetargetConfig, retarget_fingertips, virtual_finger_targets
+    from retarget.virtual_fingers import virtual_fingers_of
+
+    demo = Demonstration.load("ham")
+    config = RetargetConfig() if max_nfev is None else RetargetConfig(max_nfev=max_nfev)
+    vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
+    sl = slice(demo.num_steps - num_steps, demo.num_steps)
+    targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf)[sl]
+    scene = load_scene(demo.object)
+    with World(scene, hand="sah") as world:
+        is_free = object_frame_is_free(world, scene.T_world_object)
+        t0 = time.perf_counter()
+        res = retarget_fingertips(targets, demo.T_object_wrist[sl], is_free=is_free, config=config)
+        dt = time.perf_counter() - t0
+    return {
+        "steps": num_steps,
+        "demo_steps": demo.num_steps,
+        "max_nfev": config.max_nfev,
+        "s_per_step": dt / num_steps,
+        "projected_demo_s": dt / num_steps * demo.num_steps,
+        "mean_nfev": float(np.mean(res.nfev)),
+        "rmse_mm": float(res.rmse_mm),
+    }
+
+
+# -- planning ------------------------------------------------------------------------------------------
+def _sha256_file(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _scene_files(scene) -> list[Path]:
+    """Every file a scene's geometry comes from (the YAML, its object, obstacles, meshes, the hand)."""
+    files = [Path(scene.path), assets.object_urdf(scene.object.name), assets.object_mesh(scene.object.name)]
+    for ob in scene.obstacles:
+        if ob.type == "object":
+            files += [assets.object_urdf(ob.name), assets.object_mesh(ob.name)]
+        elif ob.type == "mesh":
+            files.append(Path(ob.file))
+    return files + [assets.hand_urdf(scene.hand)]
+
+
+def _digest(parts) -> str:
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(str(part).encode())
+        h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
+    """The learned strategy of a scene by the real pipeline, cached by the hash of its inputs.
+
+    The scene's demonstration (``Scene.strategy``) is retargeted with d6 in the demonstrated object's own
+    scene and ``max_nfev`` evaluations per step, then solved with ``scene_name``'s object prior and the
+    signed-distance constraints of its table and obstacles.
+
+    Returns:
+        ``(VariationModel, info dict)`` with the cache file and the build times (0 on a cache hit).
+    """
+    from inference.model import VariationModel, solve
+    from inference.params import VariationParams
+    from planning.cli.retarget import object_frame_is_free
+    from planning.scene import load_scene
+    from planning.world import World
+    from retarget.demonstration import Demonstration
+    from retarget.lie import q_from_pose
+    from retarget.retargeting import RetargetConfig, retarget_demonstration
+
+    scene = load_scene(scene_name)
+    demo_path = assets.demonstration_path(scene.strategy)
+    demo = Demonstration.load(demo_path)
+    demo_scene = load_scene(demo.object)
+    config = RetargetConfig(max_nfev=max_nfev)
+    params = VariationParams()
+    key = _digest(
+        [
+            f"bench v{CACHE_VERSION}",
+            _sha256_file(demo_path),
+            repr(config),
+            json.dumps(params.to_dict(), sort_keys=True),
+        ]
+        + [_sha256_file(f) for f in _scene_files(demo_scene) + _scene_files(scene)]
+    )
+    path = Path(cache_dir) / f"{scene_name}-{key}.model.npz"
+    info = {"model": str(path), "retarget_s": 0.0, "infer_s": 0.0, "cached": path.is_file()}
+    if path.is_file():
+        return VariationModel.load(path), info
+    t0 = time.perf_counter()
+    with World(demo_scene, hand="sah") as world:
+        is_free = object_frame_is_free(world, demo_scene.T_world_object)
+        result = retarget_demonstration(demo, is_free=is_free, config=config)
+    traj = result.to_trajectory(
+        T_world_object_mean=demo.T_world_object_mean,
+        cov_object=demo.cov_object,
+        dt_s=demo.dt_s,
+        object_name=demo.object,
+        grasp_type=demo.grasp_type,
+        meta={"scene": demo_scene.name, "bench": True},
+    )
+    info["retarget_s"] = time.perf_counter() - t0
+    info["retarget_rmse_mm"] = float(result.rmse_mm)
+    t0 = time.perf_counter()
+    with World(scene) as world:
+
+        def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
+            return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
+
+        model = solve(
+            traj, params, T_world_object=scene.T_world_object, cov_object=scene.cov_object,
+            constraint_fn=signed_distance,
+        )  # fmt: skip
+    info["infer_s"] = time.perf_counter() - t0
+    model.save(path)
+    log.info("bench strategy of %s built and cached in %s", scene_name, path)
+    return model, info
+
+
+def _quick_model():
+    """A ham strategy built in code: a 30-step top-down approach to :data:`HAM_GRASP_Q`, small Sigma_r."""
+    from inference.model import solve
+    from retarget.trajectory import Trajectory
+
+    traj = synthetic_trajectory(30, np.random.default_rng(0))
+    cov = np.repeat((np.eye(19) * 1e-6)[None], traj.num_steps, axis=0)
+    traj = Trajectory(
+        traj.T_object_wrist, traj.joints, cov, traj.fingertip_rmse_mm, traj.T_world_object_mean,
+        traj.cov_object, traj.dt_s, traj.object, traj.grasp_type,
+    )  # fmt: skip
+    return solve(traj)
+
+
+def _planner_row(results) -> dict:
+    ok = [r for r in results if r.success]
+    total = sum(r.eta_s for r in results)
+    t_col = sum(r.time_collision_s for r in results)
+    t_q = sum(r.time_quality_s for r in results)
+    return {
+        "trials": len(results),
+        "success_rate": len(ok) / len(results),
+        "median_eta_s": float(np.median([r.eta_s for r in ok])) if ok else None,
+        "median_nodes": float(np.median([r.nodes for r in results])),
+        "median_collision_checks": float(np.median([r.collision_checks for r in results])),
+        "quality_evaluations": int(sum(r.quality_evaluations for r in results)),
+        "share_collision": t_col / total if total > 0 else None,
+        "share_quality": t_q / total if total > 0 else None,
+        "share_overhead": (total - t_col - t_q) / total if total > 0 else None,
+        "messages": sorted({r.message for r in results if not r.success}),
+    }
+
+
+def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
+    """Success, ETA, nodes, checks and time shares of the three planners on :data:`PLANNING_SCENES`.
+
+    Trial ``i`` of every planner uses the same spawned seed, so the planners start from the same roots.
+    """
+    from planning.grasp_planner import PLANNERS, GraspPlanner, PlanningSettings
+
+    scenes = ("ham",) if config.quick else PLANNING_SCENES
+    out = {}
+    for scene_name, seq in zip(scenes, rng.bit_generator.seed_seq.spawn(len(scenes)), strict=True):
+        if config.quick:
+            model, info = _quick_model(), {"model": "built in code (quick)"}
+        else:
+            model, info = strategy_model(scene_name, config.cache_dir, config.retarget_max_nfev)
+        seeds = seq.spawn(config.trials)
+        rows = {}
+        with GraspPlanner(scene_name, [model]) as planner:
+            for name in PLANNERS:
+                settings = PlanningSettings(planner=name, time_limit_s=config.time_limit_s)
+                results = [planner.plan(np.random.default_rng(s), settings) for s in seeds]
+                rows[name] = _planner_row(results)
+                log.info("bench %s %s: %s", scene_name, name, rows[name])
+        ratios = {}
+        for other in ("ompl", "baseline"):
+            a, b = rows["learned"]["median_eta_s"], rows[other]["median_eta_s"]
+            ratios[f"learned_over_{other}"] = a / b if a is not None and b else None
+        out[scene_name] = {"strategy": info, "planners": rows, "ratios": ratios}
+    return out
+
+
+def peak_memory() -> dict:
+    """Peak resident memory of this process (``ru_maxrss``, KiB on Linux) [MiB]."""
+    return {"peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+
+
+# -- the run -------------------------------------------------------------------------------------------
+def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
+    """Every measurement of the module docstring, in one process; a JSON-ready dict.
+
+    Args:
+        config: :class:`BenchConfig`.
+        progress: optional ``callable(str)`` told the name of each section as it starts.
+    """
+    say = progress or (lambda _name: None)
+    rngs = np.random.default_rng(np.random.SeedSequence(config.seed)).spawn(5)
+    q = config.quick
+    out = {"machine": machine_info(), "config": {k: str(v) for k, v in asdict(config).items()}}
+    say("inference")
+    out["inference"] = bench_inference((25, 50) if q else (25, 50, 100, 200), 1 if q else 3, rngs[0])
+    model = _quick_model()
+    say("sampler")
+    out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
+    say("collision")
+    out["collision"] = bench_collision(model, 200 if q else 2000, 20 if q else 200, rngs[2])
+    say("quality")
+    out["quality"] = bench_quality(20 if q else 200, 2 if q else 20)
+    say("retargeting")
+    out["retargeting"] = bench_retargeting(1, max_nfev=30) if q else bench_retargeting(6)
+    say("planning")
+    out["planning"] = bench_planning(config, rngs[4])
+    out["memory"] = peak_memory()
+    return out
+
+
+def _f(x, fmt: str = ".3g", none: str = "-") -> str:
+    return none if x is None else format(x, fmt)
+
+
+def format_table(r: dict) -> str:
+    """The bench results as a plain-text table."""
+    m = r["machine"]
+    lines = [
+        f"machine: {m['cpu_model']}, {m['cpu_count']} CPUs, {m['platform']}, Python {m['python']}, "
+        f"GTSAM {m['gtsam']}",
+        "",
+        "inference (graph + Gauss-Newton + marginals; marginals alone: gtsam vs dense inverse)",
+        f"  {'T':>5} {'solve ms':>10} {'marg. ms':>10} {'dense ms':>10} {'dense/gtsam':>12} "
+        f"{'max rel diff':>13}",
+    ]
+    for row in r["inference"]["rows"]:
+        lines.append(
+            f"  {row['T']:>5} {row['solve_ms']:>10.1f} {row['marginals_ms']:>10.1f} {row['dense_ms']:>10.1f} "
+            f"{row['dense_over_gtsam']:>12.2f} {row['max_rel_diff']:>13.1e}"
+        )
+    c = r["inference"]["constrained"]
+    lines += [
+        f"  T = {c['T']} with constraint factors on {c['constrained_steps']} steps: {c['solve_ms']:.1f} ms, "
+        f"{c['iterations']} relinearizations",
+        f"sampler: {r['sampler']['samples_per_s']:.3g} samples/s from P(Y) (n = {r['sampler']['n']})",
+    ]
+    col = r["collision"]
+    lines.append(
+        f"collision: {col['configs_per_s']:.0f} configurations/s ({col['us_per_config']:.0f} us each, "
+        f"{100 * col['free_fraction']:.0f}% free), {col['edges_per_s']:.0f} edges/s "
+        f"({col['configs_per_edge']:.1f} configurations per edge)"
+    )
+    qu = r["quality"]
+    lines.append(
+        f"quality: epsilon from 4 contacts {qu['epsilon_us']:.0f} us; close-and-score "
+        f"{qu['close_and_score_ms']:.1f} ms (ham grasp epsilon {qu['ham_grasp_quality']:.3f}, "
+        f"{qu['closing_steps']} steps)"
+    )
+    rt = r["retargeting"]
+    lines.append(
+        f"retargeting: {rt['s_per_step']:.2f} s/step (max_nfev {rt['max_nfev']}, {rt['steps']} steps of ham; "
+        f"{rt['projected_demo_s']:.0f} s projected for its {rt['demo_steps']} steps)"
+    )
+    lines += [
+        "",
+        "planning (per scene and planner; shares of planning time: pybullet collision / quality / overhead)",
+        f"  {'scene':<19} {'planner':<9} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
+        f"{'coll.':>6} {'qual.':>6} {'ours':>6}",
+    ]
+    for scene, s in r["planning"].items():
+        for name, p in s["planners"].items():
+            lines.append(
+                f"  {scene:<19} {name:<9} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
+                f"{p['median_nodes']:>7.0f} {p['median_collision_checks']:>8.0f} "
+                f"{_f(p['share_collision'], '.0%'):>6} {_f(p['share_quality'], '.0%'):>6} "
+                f"{_f(p['share_overhead'], '.0%'):>6}"
+            )
+        ra = s["ratios"]
+        lines.append(
+            f"  {scene:<19} median ETA learned/OMPL {_f(ra['learned_over_ompl'], '.2f')}, "
+            f"learned/baseline {_f(ra['learned_over_baseline'], '.2f')}"
+        )
+    lines += ["", f"peak memory: {r['memory']['peak_rss_mib']:.0f} MiB"]
+    return "\n".join(lines)
