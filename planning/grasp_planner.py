@@ -61,6 +61,8 @@ class PlanningSettings:
         max_nodes: node limit of our tree.
         quality_threshold: epsilon; phi_o >= it is a valid grasp.
         sample_batch: draws of P(Y) per vectorized call.
+        record_tree: return the tree in ``PlanResult.extra`` (``tree_q``, ``tree_parent``; learned and
+            baseline planners only), for plots.
     """
 
     planner: str = "learned"
@@ -71,6 +73,7 @@ class PlanningSettings:
     max_nodes: int = 50_000
     quality_threshold: float = 0.05
     sample_batch: int = 256
+    record_tree: bool = False
 
     def __post_init__(self):
         if self.planner not in PLANNERS:
@@ -220,6 +223,7 @@ class GraspPlanner:
                 max_nodes=settings.max_nodes,
                 quality_threshold=settings.quality_threshold,
                 connect=settings.planner == "learned",
+                record_tree=settings.record_tree,
             )
             result = rrt_connect(
                 roots,

@@ -38,6 +38,8 @@ class PlannerConfig:
         quality_threshold: epsilon; a grasp with phi_o >= it is valid (the paper's 0.05).
         step: the longest edge added in one extension step, in configuration-space units.
         connect: extend with CONNECT (repeated steps); ``False`` gives single-step EXTEND.
+        record_tree: return the tree in ``PlanResult.extra`` (``tree_q`` (N, d) nodes, ``tree_parent``
+            (N,) parent index, -1 for the roots), e.g. for plotting; off by default (copies the arrays).
     """
 
     time_limit_s: float = 10.0
@@ -45,6 +47,7 @@ class PlannerConfig:
     quality_threshold: float = 0.05
     step: float = 1.0
     connect: bool = True
+    record_tree: bool = False
 
     def __post_init__(self):
         if not (self.time_limit_s > 0 and self.max_nodes > 0 and self.step > 0):
@@ -166,6 +169,7 @@ def rrt_connect(
             iterations=it,
             time_quality_s=stats["t_q"],
             time_collision_s=stats["t_col"],
+            extra=_tree(forest) if config.record_tree else {},
         )
 
     it = 0
@@ -200,6 +204,12 @@ def rrt_connect(
                 stats["best"], stats["best_payload"] = float(quality), payload
             if quality >= config.quality_threshold:
                 return result(True, "valid grasp found", forest.path_to(i), quality, payload, it)
+
+
+def _tree(forest: _Forest) -> dict:
+    """The tree's nodes and parents (copies) for ``PlanResult.extra``."""
+    n = forest.count
+    return {"tree_q": forest.q[:n].copy(), "tree_parent": forest.parent[:n].copy()}
 
 
 def _grow(forest: _Forest) -> None:
