@@ -1,0 +1,351 @@
+"""The Table I report: the paper's values and ours side by side, success over time, and the best grasps.
+
+Our columns, from the stored trials (:mod:`planning.results_db`) of one run's rows, planners and trial
+numbers:
+
+* Quality: the best phi_o over all learned trials (the paper: "the best quality of all trials");
+* ETA [s]: mean time to the first valid grasp over the *successful* learned trials (root sampling
+  included), with the learned success rate;
+* Nodes: mean tree size at success over the successful learned trials;
+* MSE [mm^2]: the retargeting's fingertip mean square error, mean over the steps of tau_r (only the five
+  demonstrated rows, as in the paper);
+* ETA_0 [s]: mean time over the successful baseline trials, with the baseline success rate.
+
+Figures: ``table1_success.png`` (fraction of trials solved by time t, both planners, one panel per row,
+as OMPL's Planner Arena draws its progress plots) and ``best_grasps.png`` (pybullet renders of the best
+learned grasp of each row, closed hand, like the paper's Fig. 7 and 9).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from assets.io import atomic_write
+
+from .paper import PAPER_TABLE1
+from .results_db import TrialRecord
+
+__all__ = ["RowSummary", "summarize", "write_report", "plot_success", "render_best_grasps"]
+
+log = logging.getLogger(__name__)
+
+PLANNER_STYLE = {"learned": ("tab:blue", "learned P(Y)", "-"), "baseline": ("tab:red", "baseline RRT", "--"),
+                 "ompl": ("tab:green", "OMPL RRTConnect", ":")}  # fmt: skip
+
+
+def _style(planner: str) -> tuple[str, str, str]:
+    return PLANNER_STYLE.get(planner, ("k", planner, "-"))
+
+
+@dataclass(frozen=True)
+class RowSummary:
+    """Our Table I row (NaN where there is nothing to average).
+
+    Attributes:
+        row: the scene. trials, trials0: learned and baseline trials stored.
+        quality: best phi_o of the learned trials. success: learned success rate in [0, 1].
+        eta_s: mean time of the successful learned trials [s]. nodes: their mean tree size.
+        mse_mm2: retargeting fingertip MSE [mm^2] (NaN for the rows the paper leaves blank).
+        eta0_s: mean time of the successful baseline trials [s]. success0: baseline success rate.
+    """
+
+    row: str
+    trials: int
+    quality: float
+    success: float
+    eta_s: float
+    nodes: float
+    mse_mm2: float
+    trials0: int
+    eta0_s: float
+    success0: float
+
+
+def _mean(xs) -> float:
+    return float(np.mean(xs)) if len(xs) else math.nan
+
+
+def summarize(
+    records: Sequence[TrialRecord], rows: Sequence[str], mse_mm2: dict[str, float] | None = None
+) -> list[RowSummary]:
+    """One :class:`RowSummary` per row from the stored trials.
+
+    Args:
+        records: the trials (of any rows; only ``rows`` are summarized).
+        rows: the rows, in order.
+        mse_mm2: retargeting MSE per row; shown only for rows whose demonstration is their own object.
+    """
+    out = []
+    for row in rows:
+        lr = [r for r in records if r.row == row and r.planner == "learned"]
+        br = [r for r in records if r.row == row and r.planner == "baseline"]
+        ok = [r for r in lr if r.success]
+        ok0 = [r for r in br if r.success]
+        paper = PAPER_TABLE1.get(row)
+        show_mse = paper is not None and paper.mse_mm2 is not None
+        out.append(
+            RowSummary(
+                row=row,
+                trials=len(lr),
+                quality=max((r.quality for r in lr), default=math.nan),
+                success=len(ok) / len(lr) if lr else math.nan,
+                eta_s=_mean([r.eta_s for r in ok]),
+                nodes=_mean([r.nodes for r in ok]),
+                mse_mm2=float((mse_mm2 or {}).get(row, math.nan)) if show_mse else math.nan,
+                trials0=len(br),
+                eta0_s=_mean([r.eta_s for r in ok0]),
+                success0=len(ok0) / len(br) if br else math.nan,
+            )
+        )
+    return out
+
+
+def _f(x: float | None, fmt: str) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+
+def _eta0(eta: float | None, rate: float) -> str:
+    if rate is None or (isinstance(rate, float) and math.isnan(rate)):
+        return "—"
+    if rate == 0:
+        return "0%"
+    return f"{_f(eta, '.2f')} ({rate:.0%})"
+
+
+def _markdown(summaries: list[RowSummary], info: dict) -> str:
+    lines = [f"# Table I: {info.get('title', 'reproduction')}", ""]
+    if info.get("status"):
+        lines += [f"**{info['status']}**", ""]
+    lines += [
+        "Each cell: the paper's value \\| ours. Quality: best phi_o of the learned trials; "
+        "ETA: mean time to a valid grasp over the successful learned trials (learned success rate in "
+        "brackets); Nodes: mean tree size at success; MSE: retargeting fingertip mean square error over "
+        "the steps of tau_r; ETA_0: the baseline RRT's mean time over its successful trials (success rate "
+        "in brackets, 0% = no success).",
+        "",
+        "| Row | Quality | ETA (s) | Nodes | MSE (mm²) | ETA_0 (s) | trials |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        p = PAPER_TABLE1[s.row]
+        p_mse = _f(p.mse_mm2, ".1f")
+        lines.append(
+            f"| {p.label} | {p.quality:.2f} \\| {_f(s.quality, '.2f')} "
+            f"| {p.eta_s:g} \\| {_f(s.eta_s, '.2f')} ({_f(s.success, '.0%')}) "
+            f"| {p.nodes} \\| {_f(s.nodes, '.0f')} "
+            f"| {p_mse} \\| {_f(s.mse_mm2, '.1f')} "
+            f"| {_eta0(p.eta0_s, p.eta0_success)} \\| {_eta0(s.eta0_s, s.success0)} "
+            f"| {s.trials} / {s.trials0} |"
+        )
+    lines += ["", "## Settings", ""]
+    for k, v in info.get("settings", {}).items():
+        lines.append(f"- {k}: {v}")
+    lines += ["", "## Run", ""]
+    for k, v in info.get("run", {}).items():
+        lines.append(f"- {k}: {v}")
+    lines += [
+        "",
+        "## Figures",
+        "",
+        "- `table1_success.png`: fraction of the trials solved by time t (both planners, one panel per row).",
+        "- `best_grasps.png`: the best learned grasp of each row (closed hand, pybullet render).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _csv(summaries: list[RowSummary]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(
+        ["row", "label", "paper_quality", "quality", "paper_eta_s", "eta_s", "success", "paper_nodes",
+         "nodes", "paper_mse_mm2", "mse_mm2", "paper_eta0_s", "paper_success0", "eta0_s", "success0",
+         "trials", "trials0"]
+    )  # fmt: skip
+
+    def num(x):
+        return "" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.6g}"
+
+    for s in summaries:
+        p = PAPER_TABLE1[s.row]
+        w.writerow(
+            [s.row, p.label, num(p.quality), num(s.quality), num(p.eta_s), num(s.eta_s), num(s.success),
+             p.nodes, num(s.nodes), num(p.mse_mm2), num(s.mse_mm2), num(p.eta0_s), num(p.eta0_success),
+             num(s.eta0_s), num(s.success0), s.trials, s.trials0]
+        )  # fmt: skip
+    return buf.getvalue()
+
+
+def _save_figure(fig, path: Path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    return atomic_write(path, lambda f: f.write(buf.getvalue()))
+
+
+def _grid(n: int) -> tuple[int, int]:
+    cols = min(4, n)
+    return math.ceil(n / cols), cols
+
+
+def plot_success(
+    records: Sequence[TrialRecord], rows: Sequence[str], planners: Sequence[str], time_limit_s: float, path
+) -> Path:
+    """Fraction of trials solved by time t (0..time limit) per row and planner, one panel per row."""
+    from matplotlib.figure import Figure
+
+    nr, nc = _grid(len(rows) + 1)
+    fig = Figure(figsize=(3.0 * nc, 2.4 * nr), layout="constrained")
+    axes = fig.subplots(nr, nc, squeeze=False).ravel()
+    t = np.linspace(0.0, time_limit_s, 401)
+    for ax, row in zip(axes, rows, strict=False):
+        for planner in planners:
+            rec = [r for r in records if r.row == row and r.planner == planner]
+            if not rec:
+                continue
+            eta = np.sort([r.eta_s for r in rec if r.success])
+            solved = np.searchsorted(eta, t, side="right") / len(rec)
+            color, label, ls = _style(planner)
+            ax.step(t, solved, where="post", color=color, ls=ls, lw=1.5, label=f"{label} (n={len(rec)})")
+        ax.set_title(PAPER_TABLE1[row].label if row in PAPER_TABLE1 else row, fontsize=9)
+        ax.set_xlim(0, time_limit_s)
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("time [s]", fontsize=7)
+        ax.set_ylabel("solved fraction", fontsize=7)
+    legend_ax = axes[len(rows)]
+    handles = [
+        legend_ax.plot([], [], color=_style(p)[0], ls=_style(p)[2], label=_style(p)[1])[0] for p in planners
+    ]
+    legend_ax.legend(handles=handles, loc="center", fontsize=9, frameon=False)
+    legend_ax.axis("off")
+    for ax in axes[len(rows) + 1 :]:
+        ax.axis("off")
+    fig.suptitle("Success over time (fraction of trials with a valid grasp by time t)", fontsize=10)
+    return _save_figure(fig, Path(path))
+
+
+def best_trials(records: Sequence[TrialRecord], rows: Sequence[str]) -> dict[str, TrialRecord | None]:
+    """Per row the learned trial with the highest quality that has a grasp (any planner if none)."""
+    out = {}
+    for row in rows:
+        cand = [r for r in records if r.row == row and "closed_q" in json.loads(r.grasp_json)]
+        learned = [r for r in cand if r.planner == "learned"]
+        pool = learned or cand
+        out[row] = max(pool, key=lambda r: (r.success, r.quality), default=None)
+    return out
+
+
+def _close_camera(scene, zoom: float) -> dict:
+    from .world import default_camera
+
+    cam = default_camera(scene, "side")
+    target = np.asarray(cam["target"], dtype=float)
+    return dict(cam, eye=target + zoom * (np.asarray(cam["eye"], dtype=float) - target))
+
+
+def render_best_grasps(
+    records: Sequence[TrialRecord],
+    rows: Sequence[str],
+    path,
+    fallback_q: dict[str, np.ndarray] | None = None,
+    size_px: tuple[int, int] = (400, 300),
+    zoom: float = 0.6,
+) -> Path:
+    """A grid of pybullet renders of each row's best grasp (closed hand); see :func:`best_trials`.
+
+    Args:
+        records: the stored trials.
+        rows: one panel each.
+        path: the PNG to write.
+        fallback_q: per row a configuration (19,) in the world to show when no grasp was evaluated (e.g.
+            the strategy's mean final step), labelled as such.
+        size_px: (width, height) of each render.
+        zoom: the camera's distance as a fraction of :func:`planning.world.default_camera`'s side view.
+    """
+    from matplotlib.figure import Figure
+
+    from .world import World
+
+    best = best_trials(records, rows)
+    nr, nc = _grid(len(rows))
+    fig = Figure(figsize=(3.2 * nc, 2.7 * nr), layout="constrained")
+    axes = fig.subplots(nr, nc, squeeze=False).ravel()
+    for ax, row in zip(axes, rows, strict=False):
+        rec = best[row]
+        with World(row) as world:
+            cam = _close_camera(world.scene, zoom)
+            q, title = None, "no grasp evaluated"
+            if rec is not None:
+                q = np.asarray(json.loads(rec.grasp_json)["closed_q"], dtype=float)
+                status = "valid" if rec.success else "best attempt, NOT valid"
+                title = f"{rec.planner} #{rec.trial}: eps {rec.quality:.3f} ({status})"
+            elif fallback_q and row in fallback_q:
+                q = np.asarray(fallback_q[row], dtype=float)
+                title = "no grasp evaluated; strategy's mean final step"
+            img = world.render(q, width=size_px[0], height=size_px[1], camera=cam)
+        ax.imshow(img)
+        label = PAPER_TABLE1[row].label if row in PAPER_TABLE1 else row
+        ax.set_title(f"{label}\n{title}", fontsize=8)
+        ax.axis("off")
+    for ax in axes[len(rows) :]:
+        ax.axis("off")
+    return _save_figure(fig, Path(path))
+
+
+def write_report(
+    records: Sequence[TrialRecord],
+    rows: Sequence[str],
+    planners: Sequence[str],
+    out_dir,
+    *,
+    time_limit_s: float,
+    mse_mm2: dict[str, float] | None = None,
+    info: dict | None = None,
+    renders: bool = True,
+    fallback_q: dict[str, np.ndarray] | None = None,
+) -> list[Path]:
+    """Write ``table1.md``, ``table1.csv``, ``table1_success.png`` and ``best_grasps.png`` to ``out_dir``.
+
+    Args:
+        records: the stored trials to report.
+        rows, planners: what to report, in order.
+        out_dir: the report folder (created if missing).
+        time_limit_s: the x range of the success plot [s].
+        mse_mm2: retargeting MSE per row.
+        info: ``title``, ``status`` (a bold line), ``settings`` and ``run`` (dicts listed in the md).
+        renders: also render the best grasps (needs pybullet).
+        fallback_q: see :func:`render_best_grasps`.
+
+    Returns:
+        The files written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summaries = summarize(records, rows, mse_mm2)
+    info = dict(info or {})
+    info.setdefault("settings", {})
+    md = _markdown(summaries, info)
+    files = [
+        atomic_write(out / "table1.md", lambda f: f.write(md.encode())),
+        atomic_write(out / "table1.csv", lambda f: f.write(_csv(summaries).encode())),
+        plot_success(records, rows, planners, time_limit_s, out / "table1_success.png"),
+    ]
+    if renders:
+        files.append(render_best_grasps(records, rows, out / "best_grasps.png", fallback_q=fallback_q))
+    log.info("report: %s", ", ".join(str(f) for f in files))
+    return files
+
+
+def summaries_as_dicts(summaries: list[RowSummary]) -> list[dict]:
+    """Plain dicts of :func:`summarize`'s rows (for JSON)."""
+    return [asdict(s) for s in summaries]

@@ -1,0 +1,191 @@
+"""Table I runner and report: the quick mode end to end on Dask, resume, settings guard, seeds, summaries.
+
+The end-to-end test runs the real pipeline (retargeting, inference, planning) on two rows with two trials
+per planner and a short time limit; it asserts the database rows, that a re-run repeats nothing, and that
+the report files hold the rows. The summaries are checked against hand-computed values on synthetic trials.
+"""
+
+import csv
+import json
+import math
+import sqlite3
+
+import numpy as np
+import pytest
+
+from planning.cli import main
+from planning.paper import PAPER_TABLE1, ROWS
+from planning.report import best_trials, summarize, write_report
+from planning.results_db import TrialRecord, load_trials
+from planning.table1 import Table1Config, parse_names, trial_rng
+
+QUICK_ROWS = ("ham", "jam_hole")
+PLANNERS = ("learned", "baseline")
+TRIALS = 2
+TIME_LIMIT_S = 3.0
+FLOAT_TOL = 1e-12
+RETARGET_MAX_NFEV = 40  # a coarse strategy keeps the end-to-end test short; the runner is under test
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("table1")
+    argv = [
+        "table1",
+        "--trials", str(TRIALS),
+        "--rows", ",".join(QUICK_ROWS),
+        "--time-limit-s", str(TIME_LIMIT_S),
+        "--workers", "2",
+        "--db", str(d / "t.sqlite"),
+        "--cache-dir", str(d / "cache"),
+        "--report-dir", str(d / "report"),
+        "--no-progress",
+        "--retarget-max-nfev", str(RETARGET_MAX_NFEV),
+    ]  # fmt: skip
+    status = main(argv)
+    return d, argv, status
+
+
+def _records(path):
+    conn = sqlite3.connect(path)
+    try:
+        return load_trials(conn)
+    finally:
+        conn.close()
+
+
+def test_quick_mode_stores_every_trial(quick_run):
+    d, _, status = quick_run
+    assert status == 0
+    recs = _records(d / "t.sqlite")
+    keys = sorted(r.key() for r in recs)
+    assert keys == sorted((r, p, t) for r in QUICK_ROWS for p in PLANNERS for t in range(TRIALS))
+    for r in recs:
+        params = json.loads(r.params_json)
+        assert params["row"] == r.row and params["planner"] == r.planner and params["seed"] == 0
+        assert params["settings"]["time_limit_s"] == TIME_LIMIT_S and params["settings"]["beta"] == 0.05
+        assert r.nodes >= 1 and r.collision_checks >= 1 and r.git_commit
+        assert 0.0 <= r.quality and (r.success == (r.quality >= 0.05))
+        # a query stopped by the time limit took at least that long (root sampling included)
+        assert "time limit" not in r.message or r.eta_s >= TIME_LIMIT_S
+        grasp = json.loads(r.grasp_json)
+        if r.success:
+            assert len(grasp["closed_q"]) == 19 and len(grasp["q"]) == 19
+
+
+def test_rerun_repeats_nothing(quick_run, capsys):
+    d, argv, _ = quick_run
+    before = _records(d / "t.sqlite")
+    cache_files = sorted(p.name for p in (d / "cache").iterdir())
+    capsys.readouterr()
+    assert main(argv + ["--no-renders"]) == 0
+    out = capsys.readouterr().out
+    assert f"0 new trials, {len(before)} resumed" in out
+    assert _records(d / "t.sqlite") == before  # identical rows, eta_s included
+    assert sorted(p.name for p in (d / "cache").iterdir()) == cache_files  # strategies came from the cache
+
+
+def test_other_settings_on_the_same_db_are_refused(quick_run, capsys):
+    d, argv, _ = quick_run
+    i = argv.index("--time-limit-s")
+    changed = argv[: i + 1] + ["4.0"] + argv[i + 2 :]
+    capsys.readouterr()
+    assert main(changed) == 2
+    assert "other parameters (settings)" in capsys.readouterr().err
+
+
+def test_report_files_hold_the_rows(quick_run):
+    d, _, _ = quick_run
+    rep = d / "report"
+    md = (rep / "table1.md").read_text()
+    for row in QUICK_ROWS:
+        assert f"| {PAPER_TABLE1[row].label} | {PAPER_TABLE1[row].quality:.2f} \\|" in md
+    assert "Reduced run" in md and f"{TRIALS} / {TRIALS}" in md
+    with open(rep / "table1.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["row"] for r in rows] == list(QUICK_ROWS)
+    assert all(int(r["trials"]) == TRIALS and int(r["trials0"]) == TRIALS for r in rows)
+    # the paper's MSE (6.5^2 mm^2) and ours for the demonstrated ham; none for the obstacle row
+    assert float(rows[0]["paper_mse_mm2"]) == pytest.approx(6.5**2) and float(rows[0]["mse_mm2"]) > 0
+    assert rows[1]["mse_mm2"] == "" and rows[1]["paper_mse_mm2"] == ""
+    for png in ("table1_success.png", "best_grasps.png"):
+        assert (rep / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# -- pieces, no planning -----------------------------------------------------------------------------
+def test_trial_streams_depend_only_on_the_key():
+    a = trial_rng(0, "jam", "baseline", 7).random(4)
+    for _ in range(2):  # other streams drawn in between change nothing
+        trial_rng(0, "ham", "learned", 0).random(100)
+        np.testing.assert_array_equal(trial_rng(0, "jam", "baseline", 7).random(4), a)
+    others = [
+        trial_rng(0, "jam", "learned", 7),
+        trial_rng(0, "jam", "baseline", 8),
+        trial_rng(1, "jam", "baseline", 7),
+    ]
+    for g in others:
+        assert not np.array_equal(g.random(4), a)
+
+
+def test_names_and_config_are_validated():
+    assert parse_names(None, ROWS, "--rows") == ROWS
+    assert parse_names("jam_hole, ham,ham", ROWS, "--rows") == ("jam_hole", "ham")
+    with pytest.raises(ValueError, match="unknown nope; valid: ham"):
+        parse_names("ham,nope", ROWS, "--rows")
+    assert Table1Config(rows=("jam_hole", "ham"), workers=1).rows == ("ham", "jam_hole")  # ROWS order
+    with pytest.raises(ValueError, match="trials: expected a positive number"):
+        Table1Config(trials=0, workers=1)
+    with pytest.raises(ValueError, match="must be positive"):
+        Table1Config(time_limit_s=0.0, workers=1)
+    with pytest.raises(ValueError, match="planners: unknown"):
+        Table1Config(planners=("rrt*",), workers=1)
+
+
+def test_cli_rejects_unknown_rows(tmp_path, capsys):
+    assert main(["table1", "--rows", "ham,spam", "--db", str(tmp_path / "x.sqlite")]) == 2
+    assert "error: --rows: unknown spam" in capsys.readouterr().err
+    assert not (tmp_path / "x.sqlite").exists()
+
+
+def _rec(row, planner, trial, success, eta_s, nodes, quality, q=None):
+    grasp = {} if q is None else {"closed_q": list(q)}
+    return TrialRecord(
+        row, planner, trial, 0, success, eta_s, nodes, quality, 10, 1, "", "c", "{}", json.dumps(grasp)
+    )
+
+
+def test_summary_matches_hand_computed_values(tmp_path):
+    recs = [
+        _rec("ham", "learned", 0, True, 1.0, 100, 0.20, np.zeros(19)),
+        _rec("ham", "learned", 1, True, 3.0, 300, 0.30, np.ones(19)),
+        _rec("ham", "learned", 2, False, 10.0, 999, 0.01),
+        _rec("ham", "learned", 3, True, 2.0, 200, 0.10, np.zeros(19)),
+        _rec("ham", "baseline", 0, False, 10.0, 50, 0.0),
+        _rec("ham", "baseline", 1, True, 4.0, 40, 0.06),
+        _rec("ham_arc", "learned", 0, False, 10.0, 5, 0.0),
+    ]
+    s_ham, s_arc = summarize(recs, ["ham", "ham_arc"], {"ham": 49.0, "ham_arc": 12.0})
+    assert s_ham.trials == 4 and s_ham.trials0 == 2
+    assert abs(s_ham.success - 0.75) < FLOAT_TOL and abs(s_ham.success0 - 0.5) < FLOAT_TOL
+    assert abs(s_ham.eta_s - 2.0) < FLOAT_TOL  # mean of 1, 3, 2 s: failures excluded
+    assert abs(s_ham.nodes - 200.0) < FLOAT_TOL and abs(s_ham.quality - 0.30) < FLOAT_TOL
+    assert abs(s_ham.eta0_s - 4.0) < FLOAT_TOL and s_ham.mse_mm2 == 49.0
+    # the obstacle row: no success, no baseline trials, and no MSE column (as in the paper)
+    assert s_arc.success == 0.0 and math.isnan(s_arc.eta_s) and math.isnan(s_arc.nodes)
+    assert math.isnan(s_arc.success0) and math.isnan(s_arc.mse_mm2)
+    assert best_trials(recs, ["ham", "ham_arc"]) == {"ham": recs[1], "ham_arc": None}
+    files = write_report(
+        recs,
+        ["ham", "ham_arc"],
+        list(PLANNERS),
+        tmp_path,
+        time_limit_s=10.0,
+        renders=False,
+        mse_mm2={"ham": 49.0},
+    )
+    assert [f.name for f in files] == ["table1.md", "table1.csv", "table1_success.png"]
+    md = (tmp_path / "table1.md").read_text()
+    ham = "| Ham | 0.25 \\| 0.30 | 1.3 \\| 2.00 (75%) | 774 \\| 200 | 42.2 \\| 49.0 "
+    ham += "| 0% \\| 4.00 (50%) | 4 / 2 |"
+    assert ham in md
+    assert "| 6.1 \\| — (0%) | 502 \\| — | — \\| — | 0% \\| — | 1 / 0 |" in md
