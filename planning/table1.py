@@ -513,8 +513,12 @@ def _dask_client(config: Table1Config):
         yield client
 
 
-def run_table1(config: Table1Config) -> RunSummary:
+def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
     """Compute the strategies, run the unfinished trials and store each one as it completes.
+
+    Args:
+        config: the run's settings.
+        run_trials: ``False`` only collects the stored trials (to report on a partial run).
 
     Returns:
         A :class:`RunSummary`; the report is :func:`planning.report.write_report`'s job.
@@ -541,7 +545,7 @@ def run_table1(config: Table1Config) -> RunSummary:
         )
         wanted = {(r, p, t) for r in config.rows for p in config.planners for t in range(config.trials)}
         done = finished_keys(conn) & wanted
-        tasks = make_tasks(config, strategies, done, commit)
+        tasks = make_tasks(config, strategies, done, commit) if run_trials else []
         previous = [r for r in load_trials(conn, list(config.rows)) if r.key() in wanted]
         progress = _Progress(config, len(wanted), len(done), previous)
         errors = 0

@@ -38,6 +38,7 @@ def add_arguments(p) -> None:
     p.add_argument("--cache-dir", default="results/cache", help="cached trajectories and models")
     p.add_argument("--report-dir", default="results", help="where table1.md/.csv and the figures go")
     p.add_argument("--no-renders", action="store_true", help="skip best_grasps.png")
+    p.add_argument("--report-only", action="store_true", help="run no trials: report what the database holds")
     p.add_argument("--seed", type=int, default=0, help="the run's seed (trial streams are spawned from it)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument(
@@ -71,7 +72,7 @@ def run(args) -> int:
         progress=False if args.no_progress else None,
         retarget_max_nfev=args.retarget_max_nfev,
     )
-    summary = run_table1(config)
+    summary = run_table1(config, run_trials=not args.report_only)
     full = config.trials == 100 and len(config.rows) == len(ROWS)
     n_records = len(summary.records)
     expected = len(config.rows) * len(config.planners) * config.trials
