@@ -107,6 +107,17 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+_SOURCE_KEYS = (
+    "T_object_wrist",
+    "joints",
+    "cov_retarget",
+    "fingertip_rmse_mm",
+    "T_world_object_mean",
+    "cov_object",
+    "dt_s",
+    "object",
+    "grasp_type",
+)
 ConstraintFn = Callable[[np.ndarray, np.ndarray], float]
 
 
@@ -259,7 +270,16 @@ class VariationModel:
             raise InputError(f"params_json: not JSON ({exc})", path) from None
         params = VariationParams.from_dict(params_dict, path)
         source = None
-        if "traj_T_object_wrist" in d:
+        traj_keys = [f"traj_{k}" for k in _SOURCE_KEYS]
+        if any(k in d for k in traj_keys):
+            missing = [k for k in traj_keys if k not in d]
+            if missing:
+                raise InputError(f"source trajectory: missing keys {missing}", path)
+            for key in ("traj_dt_s", "traj_object", "traj_grasp_type"):
+                if d[key].ndim != 0:
+                    raise InputError(f"{key}: expected a scalar, found shape {d[key].shape}", path)
+            if d["traj_dt_s"].dtype.kind not in "iuf":
+                raise InputError(f"traj_dt_s: expected a number of seconds, found {d['traj_dt_s']!r}", path)
             try:
                 meta = json.loads(str(d.get("traj_meta_json", "{}")))
             except ValueError as exc:
@@ -280,6 +300,11 @@ class VariationModel:
         for key in ("iterations", "grasp_type", "object"):
             if d[key].ndim != 0:
                 raise InputError(f"{key}: expected a scalar, found shape {d[key].shape}", path)
+        for key in ("iterations", "solve_time_s", "converged"):
+            if key in d and (d[key].ndim != 0 or d[key].dtype.kind not in "biuf"):
+                raise InputError(
+                    f"{key}: expected a number, found {d[key].dtype} of shape {d[key].shape}", path
+                )
         return cls(
             T_object_wrist_mean=d["T_object_wrist_mean"],
             joints_mean=d["joints_mean"],

@@ -158,7 +158,7 @@ class VariationParams:
                 f"parameters: expected a mapping of names to values, found {type(data).__name__}", path
             )
         names = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(data) - set(names))
+        unknown = sorted(set(data) - set(names), key=str)
         if unknown:
             raise InputError(f"unknown parameters {unknown}; valid names: {', '.join(names)}", path)
         try:
@@ -178,8 +178,10 @@ class VariationParams:
                 data = yaml.safe_load(f)
         except FileNotFoundError:
             raise InputError("no such parameter file", path) from None
-        except yaml.YAMLError as exc:
-            raise InputError(f"not valid YAML ({exc})", path) from None
+        except IsADirectoryError:
+            raise InputError("a directory, not a parameter file", path) from None
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise InputError(f"not valid YAML ({' '.join(str(exc).split())})", path) from None
         return cls.from_dict(data, path)
 
 

@@ -174,7 +174,7 @@ class _Reader:
         for key in sorted(required):
             if key not in d:
                 self.fail(f"{prefix}{key}", "missing field")
-        unknown = sorted(set(d) - required - set(optional))
+        unknown = sorted(set(d) - required - set(optional), key=str)
         if unknown:
             self.fail(
                 f"{prefix}{unknown[0]}", f"unknown field; valid: {', '.join(sorted(required | optional))}"
@@ -255,8 +255,8 @@ def load_scene(name_or_path: str | Path) -> Scene:
     try:
         with open(path) as fh:
             d = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        raise InputError(f"not valid YAML ({exc})", path) from None
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise InputError(f"not valid YAML ({' '.join(str(exc).split())})", path) from None
     r.mapping(d, "", {"name", "hand", "table", "object", "strategy", "wrist_bounds_m"}, _TOP)
 
     t = r.mapping(d["table"], "table", {"size_m"}, {"center_xy_m"})

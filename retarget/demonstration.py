@@ -87,7 +87,7 @@ def _check_poses(name: str, T, n: int | None, path) -> np.ndarray:
     if not np.allclose(T[:, 3], [0.0, 0.0, 0.0, 1.0]):
         raise InputError(f"{name}: last row of a homogeneous transform must be [0, 0, 0, 1]", path)
     dist = np.linalg.norm(T[:, :3, 3], axis=-1)
-    if dist.max() > MAX_WRIST_DISTANCE_M:
+    if dist.size and dist.max() > MAX_WRIST_DISTANCE_M:
         i = int(dist.argmax())
         raise InputError(
             f"{name}: wrist {dist[i]:.4g} from the object at step {i}, more than {MAX_WRIST_DISTANCE_M} m: "
@@ -285,7 +285,7 @@ class Demonstration:
         try:
             h = yaml.safe_load(str(d["header_yaml"]))
         except yaml.YAMLError as exc:
-            raise InputError(f"header_yaml: not valid YAML ({exc})", path) from None
+            raise InputError(f"header_yaml: not valid YAML ({' '.join(str(exc).split())})", path) from None
         if not isinstance(h, dict):
             raise InputError("header_yaml: expected a mapping", path)
         if h.get("format") != FORMAT:
