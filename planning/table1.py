@@ -7,8 +7,8 @@ For every row (a scene of the same name, :data:`planning.paper.ROWS`):
    object's obstacle-free scene, as ``pbdgrasp retarget`` does, and the variation model is solved with the
    row's scene (its object prior and the signed-distance constraints of its table and obstacles), as
    ``pbdgrasp infer --scene`` does. Both steps are cached under ``cache_dir`` by the SHA-256 of their
-   inputs (demonstration file, scene and object files, settings, a format version), so a re-run computes
-   nothing twice and an edited input is recomputed.
+   inputs (demonstration file, scene, object and hand files, settings, the Python sources of the step,
+   a format version), so a re-run computes nothing twice and an edited input or code is recomputed.
 2. the trials: ``trials`` planning queries per planner, each with its own generator
    ``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(row index in ROWS, planner index in
    PLANNERS, trial)))``, so results do not depend on the number of workers or on the order they run in.
@@ -177,6 +177,20 @@ def _digest(parts: Iterable[str]) -> str:
     return h.hexdigest()
 
 
+_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
+RETARGET_SOURCES = ("retarget",)
+MODEL_SOURCES = ("inference", "planning/world.py", "planning/scene.py", "planning/_pybullet.py")
+
+
+def _source_digest(entries: Sequence[str]) -> str:
+    """SHA-256 of the Python sources a cached step runs (folders or files relative to the package root)."""
+    files: list[Path] = []
+    for e in entries:
+        p = _PACKAGE_ROOT / e
+        files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
+    return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_sha256_file(f)}" for f in files if f.is_file())
+
+
 def _scene_files(scene) -> list[Path]:
     """Every file a scene's geometry comes from: the YAML, its object, object obstacles and meshes."""
     files = [Path(scene.path), assets.object_urdf(scene.object.name), assets.object_mesh(scene.object.name)]
@@ -244,7 +258,12 @@ def prepare_strategy(
     demo_scene = load_scene(demo.object)
     config = RetargetConfig() if retarget_max_nfev is None else RetargetConfig(max_nfev=retarget_max_nfev)
     traj_key = _digest(
-        [f"retarget v{CACHE_VERSION}", _sha256_file(demo_path), repr(config)]
+        [
+            f"retarget v{CACHE_VERSION}",
+            _source_digest(RETARGET_SOURCES),
+            _sha256_file(demo_path),
+            repr(config),
+        ]
         + [_sha256_file(f) for f in _scene_files(demo_scene)]
     )
     traj_path = cache / f"{scene.strategy}-{traj_key[:16]}.traj.npz"
@@ -266,7 +285,8 @@ def prepare_strategy(
     traj = Trajectory.load(traj_path)
     params = VariationParams()
     model_key = _digest(
-        [f"infer v{CACHE_VERSION}", _sha256_file(traj_path), json.dumps(params.to_dict(), sort_keys=True)]
+        [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), _sha256_file(traj_path)]
+        + [json.dumps(params.to_dict(), sort_keys=True)]
         + [_sha256_file(f) for f in _scene_files(scene)]
     )
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
