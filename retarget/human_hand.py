@@ -15,7 +15,7 @@ import numpy as np
 
 import assets
 
-from .kinematics import HandModel, load_hand_model
+from .kinematics import HandModel, collision_radius, load_hand_model
 
 __all__ = [
     "JOINT_NAMES",
@@ -23,6 +23,7 @@ __all__ = [
     "FINGER_JOINTS",
     "JOINT_LIMITS",
     "TIP_LINKS",
+    "FINGERTIP_RADII_M",
     "SELF_COLLISION_EXCLUDED_PAIRS",
     "model",
     "fk",
@@ -50,6 +51,11 @@ FINGER_JOINTS = MappingProxyType(
 
 TIP_LINKS: tuple[str, ...] = tuple(f"{f}_tip" for f in FINGERS)
 """Fingertip frames (end of each distal segment), :data:`FINGERS` order."""
+
+FINGERTIP_RADII_M: tuple[float, ...] = tuple(
+    collision_radius(assets.hand_urdf("human"), f"{f}_distal") for f in FINGERS
+)
+"""Radius [m] of each distal phalanx's collision capsule (the fingertip pad), :data:`FINGERS` order."""
 
 
 def model() -> HandModel:

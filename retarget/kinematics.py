@@ -270,6 +270,26 @@ def _build_plan(order: list[Joint], actuated: list[str]) -> tuple:
 
 
 @lru_cache(maxsize=8)
+def collision_radius(path: str | Path, link: str) -> float:
+    """The radius [m] of a link's round collision shape (capsule, sphere or cylinder) in a URDF.
+
+    Raises:
+        InputError: the link is missing or has no round collision shape.
+    """
+    root = ET.parse(path).getroot()
+    for el in root.findall("link"):
+        if el.get("name") == link:
+            radii = [
+                float(g.get("radius"))
+                for g in el.iterfind("collision/geometry/*")
+                if g.tag in ("capsule", "sphere", "cylinder")
+            ]
+            if radii:
+                return max(radii)
+            raise InputError(f"link {link!r} has no capsule, sphere or cylinder collision shape", path)
+    raise InputError(f"no link {link!r}", path)
+
+
 def load_hand_model(path: str) -> HandModel:
     """:meth:`HandModel.from_urdf`, cached by path (the models are immutable)."""
     return HandModel.from_urdf(path)

@@ -4,10 +4,12 @@ Steps, per demonstration:
 
 1. **Virtual fingers** (:mod:`retarget.virtual_fingers`) at the last step of tau_h pick the human finger
    each SAH finger follows; their fingertips in the object frame form tau_v.
-2. **Per step t**, the SAH wrist pose ``k`` (6 DOF) minimises ``sum_i w_i d_i(k, t)`` with Rosenbrock's
-   method (:mod:`retarget.rosenbrock`), warm-started at the previous step's optimum. The finger joints are
-   no variables: for each trial wrist pose the robust per-finger IK (:func:`retarget.ik.hand_ik`, seeded
-   with the previous step's joints) places the fingertips at tau_v(t) as well as it can.
+2. **Per step t**, the SAH wrist pose (6 DOF) and the thumb's opposition joint minimise
+   ``sum_i w_i d_i(k, t)`` with Rosenbrock's method (:mod:`retarget.rosenbrock`), warm-started at the
+   previous step's optimum. The other finger joints are no variables: for each trial the robust
+   per-finger IK (:func:`retarget.ik.hand_ik`, seeded with the previous step's joints) places the
+   fingertips at tau_v(t) as well as it can; it solves three thumb joints and takes the opposition from
+   the search. The targets match the fingertip pads, not the tip points (:func:`virtual_finger_targets`).
 3. **Sigma_r(t)**: the step's fingertip mean squared error ``mse = mean_j |F_j(k) - F_j(tau_v)|^2`` taken
    as an isotropic fingertip covariance ``mse / 3 * I_12`` (so that each fingertip's expected squared
    distance is the MSE) and mapped into the 19-D tangent ``[omega, v, 13 joints]`` by the fingertip
@@ -86,6 +88,9 @@ class RetargetConfig:
             docstring for why radians).
         step_rot_deg: Rosenbrock's initial step of the wrist rotation [deg].
         step_pos_mm: Rosenbrock's initial step of the wrist position [mm].
+        step_thumb_deg: Rosenbrock's initial step of the thumb's opposition joint [deg]. The per-finger IK
+            solves the thumb's other three joints and keeps its opposition (``thumb_base``) from the seed,
+            so Rosenbrock searches it together with the wrist pose: 7 variables a step.
         xtol: stop when all steps are below this fraction of the initial ones (0.02: 0.1 mm, 0.06 deg).
         max_nfev: objective evaluations per step (a trade-off of accuracy and time).
         escape_factors: when a step's optimum collides, Rosenbrock restarts from it with the initial steps
@@ -95,6 +100,8 @@ class RetargetConfig:
             "to allow for the traversal of forbidden areas"). Off by default: on the ham demonstration
             (4, 16) leaves 4 of 61 steps colliding but pulls the hand off the grasp (RMSE 27.3 mm),
             none leaves 12 colliding (fingers on the object at the end) with an RMSE of 7.0 mm.
+        pad_clearance_mm: the SAH fingertip pads aim this far in front of the human pads' contact
+            points (see :func:`virtual_finger_targets`; our addition for the SAH's thicker fingers).
         n_virtual: opposing virtual fingers, l - 1 = 3 for the SAH.
         adjacent_only: virtual fingers group neighbouring fingers only.
     """
@@ -103,9 +110,11 @@ class RetargetConfig:
     smoothness_unit: str = "rad"
     step_rot_deg: float = 2.0
     step_pos_mm: float = 5.0
+    step_thumb_deg: float = 5.0
     xtol: float = 0.02
     max_nfev: int = 300
     escape_factors: tuple[float, ...] = ()
+    pad_clearance_mm: float = 5.0
     n_virtual: int = 3
     adjacent_only: bool = True
 
@@ -116,8 +125,9 @@ class RetargetConfig:
         object.__setattr__(self, "weights", w)
         if self.smoothness_unit not in ("deg", "rad"):
             raise InputError(f"smoothness_unit: expected 'deg' or 'rad', found {self.smoothness_unit!r}")
-        if not (self.step_rot_deg > 0 and self.step_pos_mm > 0 and self.xtol > 0 and self.max_nfev >= 1):
-            raise InputError("step_rot_deg, step_pos_mm, xtol must be > 0 and max_nfev >= 1")
+        steps = (self.step_rot_deg, self.step_pos_mm, self.step_thumb_deg, self.xtol)
+        if not (all(v > 0 for v in steps) and self.max_nfev >= 1):
+            raise InputError("step_rot_deg, step_pos_mm, step_thumb_deg, xtol must be > 0 and max_nfev >= 1")
         if not all(f > 0 for f in self.escape_factors):
             raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")
 
@@ -208,6 +218,9 @@ class RetargetResult:
         )
 
 
+_THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
+
+
 def palm_centre(hand) -> np.ndarray:
     """Palm centre (3,) [m] in the wrist frame of a hand module (``sah`` or ``human_hand``).
 
@@ -289,12 +302,31 @@ def _smoothness(joints: np.ndarray, joints_prev: np.ndarray | None, unit: str) -
 
 
 def virtual_finger_targets(
-    T_object_hwrist: np.ndarray, human_joints: np.ndarray, virtual_fingers: VirtualFingers
+    T_object_hwrist: np.ndarray,
+    human_joints: np.ndarray,
+    virtual_fingers: VirtualFingers,
+    pad_clearance_m: float = 0.005,
 ) -> np.ndarray:
-    """tau_v: the followed human fingertips in the object frame, (T, 4, 4), (T, 20) -> (T, 4, 3) [m]."""
-    from . import human_hand
+    """tau_v: the SAH fingertip targets in the object frame, (T, 4, 4), (T, 20) -> (T, 4, 3) [m].
 
-    p_wrist = human_hand.fingertip_positions(human_joints)[:, list(virtual_fingers.human_indices)]
+    The correspondence is made at the fingertip pads, not at the fingertip centres: a human fingertip
+    touches the object with its pad, ``r_h`` (6.5-8.5 mm) in front of its tip point along the distal
+    phalanx's flexion axis (its local +x), while the SAH's pad is ``r_r`` = 13 mm in front of its tip point.
+    Each target is the human tip point moved back by ``r_r - r_h + pad_clearance_m`` along that axis, so
+    that the SAH pad ends ``pad_clearance_m`` before the place where the human pad touched, instead of
+    4.5-6.5 mm inside the object: tau_r ends at a near-contact pre-grasp which the planner's autograsp
+    closes. (The paper leaves the finger width to Sigma_m's 8 mm; without this the retargeted grasps
+    penetrate the object and almost no draw of the last marginals is collision-free.)
+    """
+    from . import human_hand, sah
+
+    idx = list(virtual_fingers.human_indices)
+    links = human_hand.fk(human_joints)
+    tips = np.stack([links[human_hand.TIP_LINKS[i]][..., :3, 3] for i in idx], axis=-2)
+    pad_axis = np.stack([links[f"{human_hand.FINGERS[i]}_distal"][..., :3, 0] for i in idx], axis=-2)
+    r_human = np.array([human_hand.FINGERTIP_RADII_M[i] for i in idx])
+    shift = r_human - np.array(sah.FINGERTIP_RADII_M) - pad_clearance_m
+    p_wrist = tips + shift[:, None] * pad_axis
     T = np.asarray(T_object_hwrist, dtype=float)
     return np.einsum("tij,tkj->tki", T[:, :3, :3], p_wrist) + T[:, None, :3, 3]
 
@@ -314,9 +346,12 @@ class _Objective:
         self.n_checks = 0
 
     def configuration(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        T = self.T_start @ se3_exp(x)
+        """x = [wrist body-frame step (6), thumb opposition step (1)] -> (T_object_wrist, joints)."""
+        T = self.T_start @ se3_exp(x[:6])
         p_wrist = (self.targets - T[:3, 3]) @ T[:3, :3]
-        return T, ik.hand_ik(p_wrist, self.joints_seed)
+        seed = self.joints_seed.copy()
+        seed[_THUMB_BASE] = np.clip(seed[_THUMB_BASE] + x[6], *sah.JOINT_LIMITS[_THUMB_BASE])
+        return T, ik.hand_ik(p_wrist, seed)
 
     def costs(self, x: np.ndarray, lazy: bool) -> tuple[StepCosts, bool]:
         T, joints = self.configuration(x)
@@ -379,7 +414,11 @@ def retarget_fingertips(
     n = P.shape[0]
     T_des = H @ rTh
     joints_seed = sah.rest_joints() if joints0 is None else sah.clip_joints(joints0)
-    step0 = np.r_[np.full(3, np.deg2rad(config.step_rot_deg)), np.full(3, 1e-3 * config.step_pos_mm)]
+    step0 = np.r_[
+        np.full(3, np.deg2rad(config.step_rot_deg)),
+        np.full(3, 1e-3 * config.step_pos_mm),
+        np.deg2rad(config.step_thumb_deg),
+    ]
 
     out_T = np.zeros((n, 4, 4))
     out_joints = np.zeros((n, 13))
@@ -393,7 +432,7 @@ def retarget_fingertips(
     joints_prev = None
     for t in tqdm(range(n), desc="retarget", unit="step", disable=not progress, leave=False):
         obj = _Objective(T_start, P[t], T_des[t], joints_seed, joints_prev, is_free, config)
-        res = minimize_rosenbrock(obj, np.zeros(6), step0=step0, xtol=config.xtol, max_nfev=config.max_nfev)
+        res = minimize_rosenbrock(obj, np.zeros(7), step0=step0, xtol=config.xtol, max_nfev=config.max_nfev)
         costs, _ = obj.costs(res.x, lazy=False)
         nfev = res.nfev
         for factor in config.escape_factors if is_free is not None else ():
@@ -465,7 +504,7 @@ def retarget_demonstration(
         log.warning("retargeting %s without a collision check: d6 = 0", demo.object)
     vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
     log.info("%s: %s", demo.object, vf.describe())
-    targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf)
+    targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf, 1e-3 * config.pad_clearance_mm)
     result = retarget_fingertips(
         targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,
         progress=progress,

@@ -19,7 +19,7 @@ import numpy as np
 
 import assets
 
-from .kinematics import HandModel, load_hand_model
+from .kinematics import HandModel, collision_radius, load_hand_model
 from .lie import skew
 
 __all__ = [
@@ -29,6 +29,7 @@ __all__ = [
     "FINGER_JOINTS",
     "JOINT_LIMITS",
     "TIP_LINKS",
+    "FINGERTIP_RADII_M",
     "BASE_LINKS",
     "SELF_COLLISION_EXCLUDED_PAIRS",
     "model",
@@ -65,6 +66,11 @@ URDF_JOINT_NAMES: tuple[str, ...] = JOINT_NAMES + tuple(f"{f}_dist" for f in FIN
 
 TIP_LINKS: tuple[str, ...] = tuple(f"{f}_tip" for f in FINGERS)
 """Fingertip frames (end of each distal phalanx), :data:`FINGERS` order."""
+
+FINGERTIP_RADII_M: tuple[float, ...] = tuple(
+    collision_radius(assets.hand_urdf("sah"), f"{f}_distal") for f in FINGERS
+)
+"""Radius [m] of each distal phalanx's collision capsule (the fingertip pad), :data:`FINGERS` order."""
 
 BASE_LINKS: tuple[str, ...] = tuple(f"{f}_knuckle" for f in FINGERS)
 """The link at each finger's abduction/flexion centre (MCP), :data:`FINGERS` order."""
