@@ -32,6 +32,7 @@ $(STAMP): pyproject.toml
 test: setup
 	$(BIN)/ruff check .
 	MPLBACKEND=Agg $(BIN)/python -m pytest
+	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 
 table1: setup
 	$(BIN)/pbdgrasp table1 --seed 0
