@@ -81,7 +81,7 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.io import atomic_savez, load_npz, require_finite, require_rotation, require_shape, require_spd
-from retarget.lie import local, se3_inverse
+from retarget.lie import local, retract, se3_inverse
 from retarget.trajectory import GRASP_TYPES, Trajectory
 
 from .factors import (
@@ -489,9 +489,13 @@ def solve(
         values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
         W_new, J_new = _means(values, n)
         if targets:
-            move = max(float(np.abs(local(W_prev, W_new)).max()), float(np.abs(J_new - J_prev).max()))
+            dW = local(W_prev, W_new)
+            move = max(float(np.abs(dW).max()), float(np.abs(J_new - J_prev).max()))
             log.debug("relinearization %d: means moved %.3g", iterations, move)
-            W_prev, J_prev = W_new, J_new
+            # damped update of the linearization point (damped loopy belief propagation): the closest-point
+            # distance switches between link pairs, and undamped relinearization oscillates between them
+            a = params.relinearization_damping
+            W_prev, J_prev = retract(W_prev, a * dW), J_prev + a * (J_new - J_prev)
             if move < params.mean_tolerance:
                 converged = True
                 break

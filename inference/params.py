@@ -27,7 +27,9 @@ Every field has the paper's default (or a documented choice where the paper is s
                                           # pybullet distances are noisy at ~1e-6 m: 1e-5 did not converge
     # relinearization loop (section VI) and the Gauss-Newton solve inside it
     max_iterations: 20
-    mean_tolerance: 1.0e-6                # stop when marginal means move less than this [rad, m]
+    mean_tolerance: 1.0e-4                # stop when marginal means move less than this [rad, m]
+    relinearization_damping: 0.5          # the next linearization point moves this fraction of the way
+                                          # to the new means (damped loopy belief propagation)
     gauss_newton_max_iterations: 100
     gauss_newton_relative_tolerance: 1.0e-10  # relative change of the squared error
 
@@ -77,7 +79,8 @@ class VariationParams:
     constraint_delta_variance: float = 1e-10
     gradient_step: float = 1e-3
     max_iterations: int = 20
-    mean_tolerance: float = 1e-6
+    mean_tolerance: float = 1e-4
+    relinearization_damping: float = 0.5
     gauss_newton_max_iterations: int = 100
     gauss_newton_relative_tolerance: float = 1e-10
 
@@ -105,6 +108,8 @@ class VariationParams:
                 object.__setattr__(self, f.name, int(value))
                 continue
             value = float(value)
+            if f.name == "relinearization_damping" and not 0.0 < value <= 1.0:
+                raise InputError(f"{f.name}: expected a fraction in (0, 1], found {value!r}")
             allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm")
             if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
                 raise InputError(
