@@ -84,6 +84,8 @@ class BenchConfig:
         time_limit_s: budget of one planning query [s].
         cache_dir: where the planning strategies are cached.
         retarget_max_nfev: Rosenbrock evaluations per step when building the planning strategies.
+        models: ``(scene, model path)`` pairs: use these strategies instead of building them (e.g. the
+            full-budget ones of ``pbdgrasp table1``'s cache).
     """
 
     quick: bool = False
@@ -92,8 +94,12 @@ class BenchConfig:
     time_limit_s: float = 10.0
     cache_dir: Path = Path("results/cache/bench")
     retarget_max_nfev: int = 100
+    models: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self):
+        bad = [scene for scene, _ in self.models if scene not in PLANNING_SCENES]
+        if bad:
+            raise InputError(f"models: unknown scenes {bad}; valid: {', '.join(PLANNING_SCENES)}")
         if self.trials < 1:
             raise InputError(f"trials: expected a count >= 1, found {self.trials}")
         if self.seed < 0:
@@ -486,7 +492,12 @@ def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
     scenes = ("ham",) if config.quick else PLANNING_SCENES
     out = {}
     for scene_name, seq in zip(scenes, rng.bit_generator.seed_seq.spawn(len(scenes)), strict=True):
-        if config.quick:
+        given = dict(config.models)
+        if scene_name in given:
+            from inference.model import VariationModel
+
+            model, info = VariationModel.load(given[scene_name]), {"model": given[scene_name], "given": True}
+        elif config.quick:
             model, info = _quick_model(), {"model": "built in code (quick)"}
         else:
             model, info = strategy_model(scene_name, config.cache_dir, config.retarget_max_nfev)

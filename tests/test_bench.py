@@ -76,3 +76,13 @@ def test_bad_bench_arguments_exit_2(capsys):
     assert main(["bench", "--quick", "--trials", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and "trials" in err[0]
+
+
+@pytest.mark.parametrize(
+    "argv, what",
+    [(["--model", "ham"], "SCENE=M.model.npz"), (["--model", "teapot=x.model.npz"], "unknown scenes")],
+)
+def test_bad_model_overrides_exit_2(argv, what, capsys):
+    assert main(["bench", "--quick", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and what in err[0]

@@ -26,11 +26,26 @@ def add_arguments(p) -> None:
         "--retarget-max-nfev", type=int, default=100, help="Rosenbrock evaluations per step (strategies)"
     )
 
+    p.add_argument(
+        "--model",
+        action="append",
+        default=[],
+        metavar="SCENE=M.model.npz",
+        help="plan SCENE with this strategy instead of building one (repeatable)",
+    )
+
 
 def run(args) -> int:
+    from assets.errors import InputError
     from assets.io import atomic_write
     from planning.bench import BenchConfig, format_table, run_bench
 
+    models = []
+    for item in args.model:
+        scene, sep, path = item.partition("=")
+        if not sep or not scene or not path:
+            raise InputError(f"--model: expected SCENE=M.model.npz, found {item!r}")
+        models.append((scene, path))
     config = BenchConfig(
         quick=args.quick,
         trials=args.trials,
@@ -38,6 +53,7 @@ def run(args) -> int:
         time_limit_s=args.time_limit_s,
         cache_dir=args.cache_dir,
         retarget_max_nfev=args.retarget_max_nfev,
+        models=tuple(models),
     )
     results = run_bench(config, progress=lambda name: print(f"bench: {name} ...", file=sys.stderr))
     text = json.dumps(results, indent=2, sort_keys=True)
