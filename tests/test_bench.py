@@ -30,7 +30,7 @@ def test_quick_bench_json_has_every_section_and_key(quick):
         assert set(row) == {"T", "solve_ms", "marginals_ms", "dense_ms", "dense_over_gtsam", "max_rel_diff"}
         assert row["solve_ms"] > 0 and row["dense_ms"] > 0
     assert set(quick["inference"]["constrained"]) == {"T", "solve_ms", "iterations", "constrained_steps"}
-    assert quick["sampler"]["samples_per_s"] > 0
+    assert quick["sampler"]["samples_per_s"] > 0 and quick["sampler"]["numpy_normals_19d_per_s"] > 0
     assert set(quick["collision"]) >= {"configs_per_s", "edges_per_s"}
     assert set(quick["quality"]) >= {"epsilon_us", "close_and_score_ms"}
     assert quick["retargeting"]["s_per_step"] > 0
