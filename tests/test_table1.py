@@ -85,6 +85,30 @@ def test_rerun_repeats_nothing(quick_run, capsys):
     assert sorted(p.name for p in (d / "cache").iterdir()) == cache_files  # strategies came from the cache
 
 
+def test_a_killed_run_resumes_with_only_the_missing_trials(quick_run, capsys):
+    d, argv, _ = quick_run
+    db = d / "t.sqlite"
+    before = {r.key(): r for r in _records(db)}
+    lost = [("ham", "baseline", 1), ("jam_hole", "learned", 0)]  # as if the run had died before them
+    conn = sqlite3.connect(db)
+    with conn:
+        conn.executemany("DELETE FROM trials WHERE row=? AND planner=? AND trial=?", lost)
+    conn.close()
+    i = argv.index("--workers")
+    in_process = argv[: i + 1] + ["0"] + argv[i + 2 :] + ["--no-renders"]
+    capsys.readouterr()
+    assert main(in_process) == 0
+    assert f"{len(lost)} new trials, {len(before) - len(lost)} resumed" in capsys.readouterr().out
+    after = {r.key(): r for r in _records(db)}
+    assert sorted(after) == sorted(before)
+    assert all(after[k] == before[k] for k in before if k not in lost)  # finished trials untouched
+    for k in lost:  # the same trial stream again: same seed and settings
+        assert after[k].seed == before[k].seed and after[k].params_json == before[k].params_json
+        if not any("time limit" in r.message for r in (before[k], after[k])):
+            # not cut by the clock: the same trial in this process as on a Dask worker
+            assert after[k].deterministic_fields() == before[k].deterministic_fields()
+
+
 def test_other_settings_on_the_same_db_are_refused(quick_run, capsys):
     d, argv, _ = quick_run
     i = argv.index("--time-limit-s")
