@@ -374,6 +374,12 @@ def _scene_files(scene) -> list[Path]:
     return files + [assets.hand_urdf(scene.hand)]
 
 
+def _pipeline_sources() -> list[Path]:
+    """The retargeting and inference code: a change of it rebuilds the cached strategies."""
+    root = Path(__file__).resolve().parent.parent
+    return sorted((root / "retarget").glob("*.py")) + sorted((root / "inference").glob("*.py"))
+
+
 def _digest(parts) -> str:
     h = hashlib.sha256()
     for part in parts:
@@ -387,7 +393,8 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
 
     The scene's demonstration (``Scene.strategy``) is retargeted with d6 in the demonstrated object's own
     scene and ``max_nfev`` evaluations per step, then solved with ``scene_name``'s object prior and the
-    signed-distance constraints of its table and obstacles.
+    signed-distance constraints of its table and obstacles. The cache key hashes the demonstration, the
+    settings, the scenes' files and the source of ``retarget/`` and ``inference/``.
 
     Returns:
         ``(VariationModel, info dict)`` with the cache file and the build times (0 on a cache hit).
@@ -415,6 +422,7 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
             json.dumps(params.to_dict(), sort_keys=True),
         ]
         + [_sha256_file(f) for f in _scene_files(demo_scene) + _scene_files(scene)]
+        + [_sha256_file(f) for f in _pipeline_sources()]
     )
     path = Path(cache_dir) / f"{scene_name}-{key}.model.npz"
     info = {"model": str(path), "retarget_s": 0.0, "infer_s": 0.0, "cached": path.is_file()}
