@@ -144,7 +144,9 @@ def require_psd(name: str, cov, path=None, rtol: float = 1e-9) -> np.ndarray:
 def require_rotation(name: str, R, path=None, atol: float = 1e-6) -> np.ndarray:
     """Check that every matrix in ``R`` (..., 3, 3) is a rotation (orthonormal, determinant +1)."""
     R = require_finite(name, R, path)
-    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max() if R.size else 0.0
+    with np.errstate(over="ignore", invalid="ignore"):  # entries near 1e308 overflow: still refused
+        err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max() if R.size else 0.0
+        err = err if np.isfinite(err) else np.inf
     if err > atol or np.any(np.linalg.det(R) < 0):
         raise InputError(f"{name}: not a rotation matrix (|R^T R - I| = {err:.2e}, tolerance {atol:g})", path)
     return R
