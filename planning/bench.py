@@ -329,8 +329,8 @@ def bench_quality(repeats_epsilon: int = 200, repeats_close: int = 20) -> dict:
 
 def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
     """Seconds per step of retargeting the last ``num_steps`` steps of the ham demonstration (with d6)."""
-    from planning.cli.retarget import object_frame_is_free
     from planning.scene import load_scene
+    from planning.strategy import object_frame_is_free
     from planning.world import World
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig, retarget_fingertips, virtual_finger_targets
@@ -377,7 +377,8 @@ def _scene_files(scene) -> list[Path]:
 def _pipeline_sources() -> list[Path]:
     """The retargeting and inference code: a change of it rebuilds the cached strategies."""
     root = Path(__file__).resolve().parent.parent
-    return sorted((root / "retarget").glob("*.py")) + sorted((root / "inference").glob("*.py"))
+    pipeline = sorted((root / "retarget").glob("*.py")) + sorted((root / "inference").glob("*.py"))
+    return pipeline + [root / "planning" / "strategy.py"]
 
 
 def _digest(parts) -> str:
@@ -399,14 +400,12 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
     Returns:
         ``(VariationModel, info dict)`` with the cache file and the build times (0 on a cache hit).
     """
-    from inference.model import VariationModel, solve
+    from inference.model import VariationModel
     from inference.params import VariationParams
-    from planning.cli.retarget import object_frame_is_free
     from planning.scene import load_scene
-    from planning.world import World
+    from planning.strategy import learn_in_scene, retarget_in_scene
     from retarget.demonstration import Demonstration
-    from retarget.lie import q_from_pose
-    from retarget.retargeting import RetargetConfig, retarget_demonstration
+    from retarget.retargeting import RetargetConfig
 
     scene = load_scene(scene_name)
     demo_path = assets.demonstration_path(scene.strategy)
@@ -429,29 +428,11 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
     if path.is_file():
         return VariationModel.load(path), info
     t0 = time.perf_counter()
-    with World(demo_scene, hand="sah") as world:
-        is_free = object_frame_is_free(world, demo_scene.T_world_object)
-        result = retarget_demonstration(demo, is_free=is_free, config=config)
-    traj = result.to_trajectory(
-        T_world_object_mean=demo.T_world_object_mean,
-        cov_object=demo.cov_object,
-        dt_s=demo.dt_s,
-        object_name=demo.object,
-        grasp_type=demo.grasp_type,
-        meta={"scene": demo_scene.name, "bench": True},
-    )
+    traj, result = retarget_in_scene(demo, demo_scene, config, meta={"bench": True})
     info["retarget_s"] = time.perf_counter() - t0
     info["retarget_rmse_mm"] = float(result.rmse_mm)
     t0 = time.perf_counter()
-    with World(scene) as world:
-
-        def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
-            return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
-
-        model = solve(
-            traj, params, T_world_object=scene.T_world_object, cov_object=scene.cov_object,
-            constraint_fn=signed_distance,
-        )  # fmt: skip
+    model = learn_in_scene(traj, scene, params)
     info["infer_s"] = time.perf_counter() - t0
     model.save(path)
     log.info("bench strategy of %s built and cached in %s", scene_name, path)

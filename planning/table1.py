@@ -178,8 +178,10 @@ def _digest(parts: Iterable[str]) -> str:
 
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-RETARGET_SOURCES = ("retarget",)
-MODEL_SOURCES = ("inference", "planning/world.py", "planning/scene.py", "planning/_pybullet.py")
+RETARGET_SOURCES = ("retarget", "planning/strategy.py")
+MODEL_SOURCES = (
+    "inference", "planning/world.py", "planning/scene.py", "planning/_pybullet.py", "planning/strategy.py"
+)
 
 
 def _source_digest(entries: Sequence[str]) -> str:
@@ -240,15 +242,13 @@ def prepare_strategy(
     Returns:
         The :class:`Strategy` with the cached file paths.
     """
-    from inference import VariationParams, solve
+    from inference import VariationParams
     from retarget.demonstration import Demonstration
-    from retarget.lie import q_from_pose
-    from retarget.retargeting import RetargetConfig, retarget_demonstration
+    from retarget.retargeting import RetargetConfig
     from retarget.trajectory import Trajectory
 
-    from .cli.retarget import object_frame_is_free
     from .scene import load_scene
-    from .world import World
+    from .strategy import learn_in_scene, retarget_in_scene
 
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
@@ -269,18 +269,7 @@ def prepare_strategy(
     traj_path = cache / f"{scene.strategy}-{traj_key[:16]}.traj.npz"
     if not traj_path.is_file():
         log.info("retargeting %s (cache miss) -> %s", scene.strategy, traj_path)
-        start = time.perf_counter()
-        with World(demo_scene, hand="sah") as world:
-            is_free = object_frame_is_free(world, demo_scene.T_world_object)
-            result = retarget_demonstration(demo, is_free=is_free, config=config, progress=bool(progress))
-        traj = result.to_trajectory(
-            T_world_object_mean=demo.T_world_object_mean,
-            cov_object=demo.cov_object,
-            dt_s=demo.dt_s,
-            object_name=demo.object,
-            grasp_type=demo.grasp_type,
-            meta={"scene": demo_scene.name, "retarget_time_s": time.perf_counter() - start},
-        )
+        traj, _ = retarget_in_scene(demo, demo_scene, config, progress=bool(progress))
         traj.save(traj_path)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
@@ -292,18 +281,7 @@ def prepare_strategy(
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
     if not model_path.is_file():
         log.info("inferring the variation model of %s (cache miss) -> %s", row, model_path)
-        with World(scene) as world:
-
-            def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
-                return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
-
-            model = solve(
-                traj,
-                params,
-                T_world_object=scene.T_world_object,
-                cov_object=scene.cov_object,
-                constraint_fn=signed_distance,
-            )
+        model = learn_in_scene(traj, scene, params)
         model.save(model_path)
     mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))
     return Strategy(row, scene.strategy, traj_path, model_path, _sha256_file(model_path), mse_mm2)

@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 from inference import VariationParams, solve
-from retarget.lie import q_from_pose
 from retarget.trajectory import Trajectory
 
 NAME = "infer"
@@ -34,21 +31,9 @@ def run(args) -> int:
     params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
     if args.scene:
         from planning.scene import load_scene
-        from planning.world import World
+        from planning.strategy import learn_in_scene
 
-        scene = load_scene(args.scene)
-        with World(scene) as world:
-
-            def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
-                return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
-
-            model = solve(
-                traj,
-                params,
-                T_world_object=scene.T_world_object,
-                cov_object=scene.cov_object,
-                constraint_fn=signed_distance,
-            )
+        model = learn_in_scene(traj, load_scene(args.scene), params)
     else:
         model = solve(traj, params)
     model.save(args.output)

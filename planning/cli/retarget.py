@@ -10,8 +10,6 @@ import logging
 import time
 from pathlib import Path
 
-import numpy as np
-
 from assets.errors import InputError
 
 NAME = "retarget"
@@ -33,30 +31,11 @@ def add_arguments(p) -> None:
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
-def object_frame_is_free(world, T_world_object: np.ndarray):
-    """``is_free(q_object)`` for retargeting from a :class:`planning.world.World` checking q in the world.
-
-    Args:
-        world: the pybullet world (its ``is_free`` takes q (19,) in the world frame).
-        T_world_object: (4, 4) the object's pose in that world.
-    """
-    from retarget.lie import pose_from_q, q_from_pose
-
-    T_world_object = np.asarray(T_world_object, dtype=float)
-
-    def is_free(q_object: np.ndarray) -> bool:
-        q_world = np.array(q_object, dtype=float)
-        q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
-        return bool(world.is_free(q_world))
-
-    return is_free
-
-
 def run(args) -> int:
     from planning.scene import load_scene
-    from planning.world import World
+    from planning.strategy import retarget_in_scene
     from retarget.demonstration import Demonstration
-    from retarget.retargeting import RetargetConfig, retarget_demonstration
+    from retarget.retargeting import RetargetConfig
 
     out = Path(args.output)
     if not out.name.endswith(".traj.npz"):
@@ -65,32 +44,19 @@ def run(args) -> int:
         raise InputError(f"--max-nfev: expected a positive number, found {args.max_nfev}")
     demo = Demonstration.load(args.demo)
     config = RetargetConfig() if args.max_nfev is None else RetargetConfig(max_nfev=args.max_nfev)
+    scene = None
+    if not args.no_collision:
+        scene = load_scene(args.scene or demo.object)
+        if scene.object.name != demo.object:
+            raise InputError(
+                f"--scene: scene {scene.name!r} holds {scene.object.name!r}, "
+                f"the demonstration {demo.object!r}"
+            )
     start = time.perf_counter()
-    world = None
-    try:
-        is_free = None
-        if not args.no_collision:
-            scene = load_scene(args.scene or demo.object)
-            if scene.object.name != demo.object:
-                raise InputError(
-                    f"--scene: scene {scene.name!r} holds {scene.object.name!r}, "
-                    f"the demonstration {demo.object!r}"
-                )
-            world = World(scene, hand="sah")
-            is_free = object_frame_is_free(world, scene.T_world_object)
-        result = retarget_demonstration(demo, is_free=is_free, config=config, progress=not args.no_progress)
-    finally:
-        if world is not None:
-            world.close()
-    elapsed = time.perf_counter() - start
-    traj = result.to_trajectory(
-        T_world_object_mean=demo.T_world_object_mean,
-        cov_object=demo.cov_object,
-        dt_s=demo.dt_s,
-        object_name=demo.object,
-        grasp_type=demo.grasp_type,
-        meta={"seed": args.seed, "scene": None if args.no_collision else (args.scene or demo.object)},
+    traj, result = retarget_in_scene(
+        demo, scene, config, progress=not args.no_progress, meta={"seed": args.seed}
     )
+    elapsed = time.perf_counter() - start
     traj.save(out)
     collide = result.meta.get("steps_in_collision")
     print(

@@ -1,0 +1,100 @@
+"""A learned strategy from a demonstration, in scenes: the one place where retargeting and the variation
+model meet the pybullet world.
+
+* :func:`retarget_in_scene`: section IV with d6 checked in the demonstration's scene (the SAH against the
+  object and the table), giving tau_r and Sigma_r(t) as a :class:`~retarget.trajectory.Trajectory`;
+* :func:`learn_in_scene`: sections V-VI in a planning scene: the scene's object pose and localization
+  covariance as P(O), and the signed distance of the hand to the scene's table and obstacles as the
+  constraint of the linearized constraint factors.
+
+The CLI (``retarget``, ``infer``), the Table I runner and the bench all build strategies through here.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from inference.model import VariationModel, solve
+from inference.params import VariationParams
+from retarget.demonstration import Demonstration
+from retarget.lie import pose_from_q, q_from_pose
+from retarget.retargeting import RetargetConfig, RetargetResult, retarget_demonstration
+from retarget.trajectory import Trajectory
+
+from .scene import Scene
+from .world import World
+
+__all__ = ["object_frame_is_free", "signed_distance_fn", "retarget_in_scene", "learn_in_scene"]
+
+
+def object_frame_is_free(world: World, T_world_object: np.ndarray) -> Callable[[np.ndarray], bool]:
+    """``is_free(q_object)`` for retargeting, from a world whose ``is_free`` takes q in the world frame.
+
+    Args:
+        world: the pybullet world.
+        T_world_object: (4, 4) the object's pose in that world.
+    """
+    T_world_object = np.asarray(T_world_object, dtype=float)
+
+    def is_free(q_object: np.ndarray) -> bool:
+        q_world = np.array(q_object, dtype=float)
+        q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
+        return bool(world.is_free(q_world))
+
+    return is_free
+
+
+def signed_distance_fn(world: World) -> Callable[[np.ndarray, np.ndarray], float]:
+    """phi(T_world_wrist (4, 4), joints (13,)) -> the hand's signed distance [m] to table and obstacles."""
+
+    def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
+        return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
+
+    return signed_distance
+
+
+def retarget_in_scene(
+    demo: Demonstration,
+    scene: Scene | None,
+    config: RetargetConfig | None = None,
+    progress: bool = False,
+    meta: dict | None = None,
+) -> tuple[Trajectory, RetargetResult]:
+    """Retarget ``demo`` with d6 checked in ``scene`` (None: no collision term), as a trajectory.
+
+    Returns:
+        The trajectory (object prior and rate of the demonstration; ``meta`` plus the scene name and the
+        retargeting time) and the full :class:`~retarget.retargeting.RetargetResult`.
+    """
+    start = time.perf_counter()
+    if scene is None:
+        result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
+    else:
+        with World(scene, hand="sah") as world:
+            is_free = object_frame_is_free(world, scene.T_world_object)
+            result = retarget_demonstration(demo, is_free=is_free, config=config, progress=progress)
+    traj = result.to_trajectory(
+        T_world_object_mean=demo.T_world_object_mean,
+        cov_object=demo.cov_object,
+        dt_s=demo.dt_s,
+        object_name=demo.object,
+        grasp_type=demo.grasp_type,
+        meta=dict(meta or {}, scene=None if scene is None else scene.name,
+                  retarget_time_s=time.perf_counter() - start),
+    )  # fmt: skip
+    return traj, result
+
+
+def learn_in_scene(traj: Trajectory, scene: Scene, params: VariationParams | None = None) -> VariationModel:
+    """The variation model of ``traj`` with the scene's object prior and signed-distance constraints."""
+    with World(scene) as world:
+        return solve(
+            traj,
+            params,
+            T_world_object=scene.T_world_object,
+            cov_object=scene.cov_object,
+            constraint_fn=signed_distance_fn(world),
+        )
