@@ -19,16 +19,14 @@ said otherwise; they are figures of this machine (:func:`machine_info`), never a
   pybullet collision checks and in the quality (phi_o); the rest is our own overhead (sampling, nearest
   neighbours, bookkeeping). The learned strategies come from the real pipeline (demonstration ->
   retargeting with ``retarget_max_nfev`` -> variation model with the scene's prior and signed-distance
-  constraints), cached under ``cache_dir`` by the SHA-256 of their inputs. Quick mode plans on the ham scene
-  only, with a strategy built in code (a top-down approach to the hand-placed grasp);
+  constraints), cached under ``cache_dir`` as the Table I runner caches them. Quick mode plans on the ham
+  scene only, with a strategy built in code (a top-down approach to the hand-placed grasp);
 * peak memory: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
 """
 
 from __future__ import annotations
 
-import hashlib
 import importlib.metadata
-import json
 import logging
 import os
 import platform
@@ -40,7 +38,6 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-import assets
 from assets.errors import InputError
 
 __all__ = [
@@ -60,9 +57,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-CACHE_VERSION = 1
-"""Bump to invalidate the cached bench strategies (a change of the pipeline's code)."""
 
 #: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.09), q (19,) [m, rad];
 #: the grasp of ``tests/test_autograsp.py``.
@@ -359,83 +353,35 @@ def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
 
 
 # -- planning ------------------------------------------------------------------------------------------
-def _sha256_file(path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def _scene_files(scene) -> list[Path]:
-    """Every file a scene's geometry comes from (the YAML, its object, obstacles, meshes, the hand)."""
-    files = [Path(scene.path), assets.object_urdf(scene.object.name), assets.object_mesh(scene.object.name)]
-    for ob in scene.obstacles:
-        if ob.type == "object":
-            files += [assets.object_urdf(ob.name), assets.object_mesh(ob.name)]
-        elif ob.type == "mesh":
-            files.append(Path(ob.file))
-    return files + [assets.hand_urdf(scene.hand)]
-
-
-def _pipeline_sources() -> list[Path]:
-    """The retargeting and inference code: a change of it rebuilds the cached strategies."""
-    root = Path(__file__).resolve().parent.parent
-    pipeline = sorted((root / "retarget").glob("*.py")) + sorted((root / "inference").glob("*.py"))
-    return pipeline + [root / "planning" / "strategy.py"]
-
-
-def _digest(parts) -> str:
-    h = hashlib.sha256()
-    for part in parts:
-        h.update(str(part).encode())
-        h.update(b"\0")
-    return h.hexdigest()[:16]
-
-
 def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
-    """The learned strategy of a scene by the real pipeline, cached by the hash of its inputs.
+    """The learned strategy of a scene by the real pipeline, from the Table I cache.
 
-    The scene's demonstration (``Scene.strategy``) is retargeted with d6 in the demonstrated object's own
-    scene and ``max_nfev`` evaluations per step, then solved with ``scene_name``'s object prior and the
-    signed-distance constraints of its table and obstacles. The cache key hashes the demonstration, the
-    settings, the scenes' files and the source of ``retarget/`` and ``inference/``.
+    :func:`planning.table1.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
+    step: the scene's demonstration retargeted in the demonstrated object's own scene, solved with the
+    scene's object prior and constraints, each step cached by the hash of its inputs.
 
     Returns:
-        ``(VariationModel, info dict)`` with the cache file and the build times (0 on a cache hit).
+        ``(VariationModel, info dict)`` with the model file, the wall time of this call (about 0 on a
+        cache hit) and the retargeting and solve times recorded when the strategy was built.
     """
     from inference.model import VariationModel
-    from inference.params import VariationParams
-    from planning.scene import load_scene
-    from planning.strategy import learn_in_scene, retarget_in_scene
-    from retarget.demonstration import Demonstration
-    from retarget.retargeting import RetargetConfig
+    from retarget.trajectory import Trajectory
 
-    scene = load_scene(scene_name)
-    demo_path = assets.demonstration_path(scene.strategy)
-    demo = Demonstration.load(demo_path)
-    demo_scene = load_scene(demo.object)
-    config = RetargetConfig(max_nfev=max_nfev)
-    params = VariationParams()
-    key = _digest(
-        [
-            f"bench v{CACHE_VERSION}",
-            _sha256_file(demo_path),
-            repr(config),
-            json.dumps(params.to_dict(), sort_keys=True),
-        ]
-        + [_sha256_file(f) for f in _scene_files(demo_scene) + _scene_files(scene)]
-        + [_sha256_file(f) for f in _pipeline_sources()]
-    )
-    path = Path(cache_dir) / f"{scene_name}-{key}.model.npz"
-    info = {"model": str(path), "retarget_s": 0.0, "infer_s": 0.0, "cached": path.is_file()}
-    if path.is_file():
-        return VariationModel.load(path), info
+    from .table1 import prepare_strategy
+
     t0 = time.perf_counter()
-    traj, result = retarget_in_scene(demo, demo_scene, config, meta={"bench": True})
-    info["retarget_s"] = time.perf_counter() - t0
-    info["retarget_rmse_mm"] = float(result.rmse_mm)
-    t0 = time.perf_counter()
-    model = learn_in_scene(traj, scene, params)
-    info["infer_s"] = time.perf_counter() - t0
-    model.save(path)
-    log.info("bench strategy of %s built and cached in %s", scene_name, path)
+    strategy = prepare_strategy(scene_name, cache_dir, retarget_max_nfev=max_nfev)
+    elapsed = time.perf_counter() - t0
+    model = VariationModel.load(strategy.model_path)
+    traj = Trajectory.load(strategy.trajectory_path)
+    info = {
+        "model": str(strategy.model_path),
+        "prepare_s": elapsed,
+        "retarget_s": float(traj.meta.get("retarget_time_s", float("nan"))),
+        "infer_s": float(model.solve_time_s),
+        "retarget_rmse_mm": float(traj.meta.get("rmse_mm", float("nan"))),
+        "retarget_mse_mm2": strategy.mse_mm2,
+    }
     return model, info
 
 
