@@ -27,7 +27,13 @@ from retarget.trajectory import Trajectory
 from .scene import Scene
 from .world import World
 
-__all__ = ["object_frame_is_free", "signed_distance_fn", "retarget_in_scene", "learn_in_scene"]
+__all__ = [
+    "object_frame_is_free",
+    "object_frame_penetration",
+    "signed_distance_fn",
+    "retarget_in_scene",
+    "learn_in_scene",
+]
 
 
 def object_frame_is_free(world: World, T_world_object: np.ndarray) -> Callable[[np.ndarray], bool]:
@@ -45,6 +51,23 @@ def object_frame_is_free(world: World, T_world_object: np.ndarray) -> Callable[[
         return bool(world.is_free(q_world))
 
     return is_free
+
+
+def object_frame_penetration(world: World, T_world_object: np.ndarray) -> Callable[[np.ndarray], float]:
+    """``penetration(q_object)`` [m] for retargeting: :meth:`World.penetration_m` with q in the object frame.
+
+    Args:
+        world: the pybullet world.
+        T_world_object: (4, 4) the object's pose in that world.
+    """
+    T_world_object = np.asarray(T_world_object, dtype=float)
+
+    def penetration(q_object: np.ndarray) -> float:
+        q_world = np.array(q_object, dtype=float)
+        q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
+        return world.penetration_m(q_world)
+
+    return penetration
 
 
 def signed_distance_fn(world: World) -> Callable[[np.ndarray, np.ndarray], float]:
@@ -74,8 +97,8 @@ def retarget_in_scene(
         result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
     else:
         with World(scene, hand="sah") as world:
-            is_free = object_frame_is_free(world, scene.T_world_object)
-            result = retarget_demonstration(demo, is_free=is_free, config=config, progress=progress)
+            penetration = object_frame_penetration(world, scene.T_world_object)
+            result = retarget_demonstration(demo, config=config, progress=progress, penetration=penetration)
     traj = result.to_trajectory(
         T_world_object_mean=demo.T_world_object_mean,
         cov_object=demo.cov_object,

@@ -323,6 +323,19 @@ class World:
         """Whether the hand at ``q`` penetrates nothing: table, object, obstacles, nor itself (every link)."""
         return not any(cp[8] < 0.0 for cp in self._contacts_raw(q))
 
+    def penetration_m(self, q: np.ndarray) -> float:
+        """How deep the hand at ``q`` penetrates the scene and itself [m]; 0 when :meth:`is_free` holds.
+
+        The sum, over the penetrating pairs (hand link, other body and link), of each pair's deepest
+        point: it decreases as any one link comes out, so a local search can follow it out of a collision.
+        """
+        deepest: dict[tuple[int, int, int], float] = {}
+        for cp in self._contacts_raw(q):
+            if cp[8] < 0.0:
+                key = (cp[3], cp[2], cp[4])
+                deepest[key] = max(deepest.get(key, 0.0), -cp[8])
+        return float(sum(deepest.values()))
+
     def link_name(self, index: int) -> str:
         return self.base_name if index < 0 else self.link_names[index]
 

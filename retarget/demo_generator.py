@@ -290,37 +290,39 @@ def _strategies() -> dict[str, Strategy]:
     down = (0.0, 0.0, -1.0)
     S = {}
     # Ham can (10 x 5.5 x 8 cm): straight from above, palm down, fingers close to the tin; thumb on the
-    # +y face, index and little on the rounded vertical edges, middle and ring on the flat -y face.
+    # +y face, index and little on the rounded vertical edges, middle and ring on the flat -y face, all
+    # at about mid-height (contacts near the top edge let the SAH's closing fingers slip over it).
     S["ham"] = Strategy(
         "ham",
         "precision",
         "straight from above, fingers close to the can: thumb on one long side, index and little on the "
-        "rounded corners, middle and ring on the opposite long side near the top edge",
+        "rounded corners, middle and ring on the opposite long side, at about mid-height",
         _frame(down, (1.0, 0.0, 0.0)),
-        np.array([0.0, 0.055, 0.15]),
+        np.array([0.0, 0.055, 0.13]),
         {
-            "thumb": (0.0, 0.03, 0.062),
-            "index": (0.045, -0.026, 0.062),
-            "middle": (0.012, -0.03, 0.06),
-            "ring": (-0.013, -0.03, 0.06),
-            "little": (-0.045, -0.026, 0.064),
+            "thumb": (0.0, 0.03, 0.045),
+            "index": (0.045, -0.026, 0.045),
+            "middle": (0.012, -0.03, 0.042),
+            "ring": (-0.013, -0.03, 0.042),
+            "little": (-0.045, -0.026, 0.047),
         },
         np.array([0.0, 0.0, 1.0]),
     )
-    # Jam jar (7 cm diameter): from above, fingertips around the lid; ring and little close together.
+    # Jam jar (7 cm diameter, 9 cm high): from above, fingertips around the jar's body below the lid;
+    # ring and little close together.
     S["jam"] = Strategy(
         "jam",
         "precision",
-        "from above, fingertips around the lid: thumb opposite the four fingers, ring and little "
-        "close together",
+        "from above, fingertips around the jar below the lid: thumb opposite the four fingers, ring and "
+        "little close together",
         _frame(down, (0.0, -1.0, 0.0)),
         np.array([0.06, 0.0, 0.18]),
         {
-            "thumb": _cyl(0.037, 5, 0.08),
-            "index": _cyl(0.037, 235, 0.08),
-            "middle": _cyl(0.037, 195, 0.08),
-            "ring": _cyl(0.037, 158, 0.08),
-            "little": _cyl(0.037, 136, 0.08),
+            "thumb": _cyl(0.037, 5, 0.055),
+            "index": _cyl(0.037, 235, 0.055),
+            "middle": _cyl(0.037, 195, 0.055),
+            "ring": _cyl(0.037, 158, 0.055),
+            "little": _cyl(0.037, 136, 0.055),
         },
         np.array([0.0, 0.0, 1.0]),
     )
@@ -332,11 +334,11 @@ def _strategies() -> dict[str, Strategy]:
         _frame(down, (1.0, 0.0, 0.0)),
         np.array([0.0, 0.06, 0.17]),
         {
-            "thumb": _cyl(0.042, 95, 0.08),
-            "index": _cyl(0.042, 325, 0.08),
-            "middle": _cyl(0.042, 285, 0.08),
-            "ring": _cyl(0.042, 248, 0.08),
-            "little": _cyl(0.042, 226, 0.08),
+            "thumb": _cyl(0.042, 95, 0.055),
+            "index": _cyl(0.042, 325, 0.055),
+            "middle": _cyl(0.042, 285, 0.055),
+            "ring": _cyl(0.042, 248, 0.055),
+            "little": _cyl(0.042, 226, 0.055),
         },
         np.array([0.0, 0.0, 1.0]),
     )

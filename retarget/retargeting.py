@@ -21,7 +21,13 @@ The distances (paper's d1..d7, weights ``(3, 1, 1, 1, 0.1, 10000, 10)``):
 * d1..d4: fingertip distance thumb, index, middle, ring to their tau_v target [mm].
 * d5: wrist distance to the human wrist carried over by ``rT_h``: position error [mm] plus rotation
   angle [deg] between ``T_object_rwrist`` and ``T_object_hwrist @ T_hwrist_rwrist``.
-* d6: 0 if the hand is collision-free (object and table), else 1; from an injected ``is_free`` callable.
+* d6: 0 if the hand is collision-free (object and table), else 1; from an injected ``is_free`` callable,
+  or from a ``penetration`` callable (the hand's penetration depth [m], 0 when free). With the latter the
+  cost of a colliding configuration also grows with its depth (``penetration_weight_per_mm``, our
+  addition): the 0/1 term alone is a plateau on which Rosenbrock, started inside it, only contracts; the
+  per-finger IK pulls the fingers to targets that a thicker SAH finger cannot reach without penetrating,
+  so without a slope the last steps of every demonstration stayed in collision (the SAH's thumb 7-21 mm
+  deep in the object or in its own palm, the small cup's fingers 12 mm in the cup).
 * d7: ``max_i |J_i(k) - J_i(tau_r(t - 1))|`` over the 13 joints, in **radians** by default
   (:attr:`RetargetConfig.smoothness_unit`); 0 at the first step. The paper gives no unit. In degrees,
   w7 = 10 makes one degree of joint change weigh as much as 10 mm of fingertip error (3.3 mm of the
@@ -77,6 +83,9 @@ PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
 IsFree = Callable[[np.ndarray], bool]
 """``is_free(q)``: q (19,) = [p (m), rotation vector (rad), 13 joints (rad)], SAH in the OBJECT frame."""
 
+Penetration = Callable[[np.ndarray], float]
+"""``penetration(q)``: the SAH's penetration depth [m] at q (object frame, as :data:`IsFree`); 0 when free."""
+
 
 @dataclass(frozen=True)
 class RetargetConfig:
@@ -102,8 +111,13 @@ class RetargetConfig:
             none leaves 12 colliding (fingers on the object at the end) with an RMSE of 7.0 mm.
         pad_clearance_mm: the SAH fingertip pads aim this far in front of the human pads' contact
             points (see :func:`virtual_finger_targets`; our addition for the SAH's thicker fingers).
+            10 mm: with the depth-graded d6, 5 mm still left the small cup's and the jam's last steps
+            1-2 mm deep in the object; 10 mm ends them free, a pre-grasp that autograsp closes.
         n_virtual: opposing virtual fingers, l - 1 = 3 for the SAH.
         adjacent_only: virtual fingers group neighbouring fingers only.
+        penetration_weight_per_mm: with a ``penetration`` callable, a colliding configuration costs
+            ``w6 + penetration_weight_per_mm * depth_mm`` (see the module docstring); 1 mm of depth
+            outweighs 1 m of fingertip error, so the search leaves the collision first.
     """
 
     weights: tuple[float, ...] = PAPER_WEIGHTS
@@ -114,9 +128,10 @@ class RetargetConfig:
     xtol: float = 0.02
     max_nfev: int = 300
     escape_factors: tuple[float, ...] = ()
-    pad_clearance_mm: float = 5.0
+    pad_clearance_mm: float = 10.0
     n_virtual: int = 3
     adjacent_only: bool = True
+    penetration_weight_per_mm: float = 1000.0
 
     def __post_init__(self):
         w = tuple(float(x) for x in self.weights)
@@ -128,6 +143,10 @@ class RetargetConfig:
         steps = (self.step_rot_deg, self.step_pos_mm, self.step_thumb_deg, self.xtol)
         if not (all(v > 0 for v in steps) and self.max_nfev >= 1):
             raise InputError("step_rot_deg, step_pos_mm, step_thumb_deg, xtol must be > 0 and max_nfev >= 1")
+        if not (np.isfinite(self.penetration_weight_per_mm) and self.penetration_weight_per_mm >= 0):
+            raise InputError(
+                f"penetration_weight_per_mm: expected >= 0, found {self.penetration_weight_per_mm}"
+            )
         if not all(f > 0 for f in self.escape_factors):
             raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")
 
@@ -139,6 +158,7 @@ class StepCosts:
     d: np.ndarray  # (7,) d1..d7
     total: float  # sum w_i d_i
     fingertip_error_m: np.ndarray  # (4, 3) robot minus target, object frame
+    penetration_mm: float = 0.0  # depth of the collision, if measured (a ``penetration`` callable)
 
 
 @dataclass(frozen=True, eq=False)
@@ -334,13 +354,14 @@ def virtual_finger_targets(
 class _Objective:
     """The per-step cost of a wrist perturbation ``x = [omega, v]`` about ``T_start`` (body frame)."""
 
-    def __init__(self, T_start, targets, T_des, joints_seed, joints_prev, is_free, config):
+    def __init__(self, T_start, targets, T_des, joints_seed, joints_prev, is_free, config, penetration=None):
         self.T_start = T_start
         self.targets = targets
         self.T_des = T_des
         self.joints_seed = joints_seed
         self.joints_prev = joints_prev
         self.is_free = is_free
+        self.penetration = penetration
         self.config = config
         self.best = np.inf
         self.n_checks = 0
@@ -356,16 +377,23 @@ class _Objective:
     def costs(self, x: np.ndarray, lazy: bool) -> tuple[StepCosts, bool]:
         T, joints = self.configuration(x)
         base = step_costs(T, joints, self.targets, self.T_des, self.joints_prev, True, self.config)
-        if self.is_free is None or (lazy and base.total > self.best):
+        if (self.is_free is None and self.penetration is None) or (lazy and base.total > self.best):
             return base, False
         self.n_checks += 1
-        free = bool(self.is_free(np.concatenate([q_from_pose(T), joints])))
+        q = np.concatenate([q_from_pose(T), joints])
+        depth_mm = 0.0
+        if self.penetration is not None:
+            depth_mm = 1e3 * max(0.0, float(self.penetration(q)))
+            free = depth_mm <= 0.0
+        else:
+            free = bool(self.is_free(q))
         if free:
             return base, True
         d = base.d.copy()
         d[5] = 1.0
-        total = base.total + self.config.weights[5]
-        return StepCosts(d=d, total=total, fingertip_error_m=base.fingertip_error_m), True
+        total = base.total + self.config.weights[5] + self.config.penetration_weight_per_mm * depth_mm
+        costs = StepCosts(d=d, total=total, fingertip_error_m=base.fingertip_error_m, penetration_mm=depth_mm)
+        return costs, True
 
     def __call__(self, x: np.ndarray) -> float:
         c, _ = self.costs(x, lazy=True)
@@ -381,6 +409,7 @@ def retarget_fingertips(
     config: RetargetConfig | None = None,
     joints0: np.ndarray | None = None,
     progress: bool = False,
+    penetration: Penetration | None = None,
 ) -> RetargetResult:
     """Solve the paper's problem (2) step by step for given virtual-finger targets.
 
@@ -389,6 +418,8 @@ def retarget_fingertips(
         T_object_hwrist: (T, 4, 4) human wrist poses in the object frame.
         T_hwrist_rwrist: (4, 4) rT_h; default :func:`palm_alignment`.
         is_free: the collision check of d6 (q in the object frame), or None to drop d6.
+        penetration: the depth of d6's collision [m] (q in the object frame); replaces ``is_free`` and
+            adds the depth term of the module docstring.
         config: :class:`RetargetConfig`; default the paper's weights.
         joints0: (13,) IK seed of the first step (default ``sah.rest_joints()``).
         progress: show a tqdm progress bar over the steps.
@@ -428,14 +459,16 @@ def retarget_fingertips(
     out_nfev = np.zeros(n, dtype=int)
     out_checks = np.zeros(n, dtype=int)
     out_ok = np.zeros(n, dtype=bool)
+    out_pen = np.zeros(n)
     T_start = T_des[0]
     joints_prev = None
+    checked = is_free is not None or penetration is not None
     for t in tqdm(range(n), desc="retarget", unit="step", disable=not progress, leave=False):
-        obj = _Objective(T_start, P[t], T_des[t], joints_seed, joints_prev, is_free, config)
+        obj = _Objective(T_start, P[t], T_des[t], joints_seed, joints_prev, is_free, config, penetration)
         res = minimize_rosenbrock(obj, np.zeros(7), step0=step0, xtol=config.xtol, max_nfev=config.max_nfev)
         costs, _ = obj.costs(res.x, lazy=False)
         nfev = res.nfev
-        for factor in config.escape_factors if is_free is not None else ():
+        for factor in config.escape_factors if checked else ():
             if costs.d[5] == 0.0:
                 break
             again = minimize_rosenbrock(
@@ -449,6 +482,7 @@ def retarget_fingertips(
         out_T[t], out_joints[t], out_err[t] = T_opt, joints_opt, costs.fingertip_error_m
         out_d[t], out_cost[t] = costs.d, costs.total
         out_nfev[t], out_checks[t], out_ok[t] = nfev, obj.n_checks, res.success
+        out_pen[t] = costs.penetration_mm
         T_start, joints_seed, joints_prev = T_opt, joints_opt, joints_opt
     mse_m2 = np.mean(np.sum(out_err**2, axis=-1), axis=-1)
     cov = fingertip_cov_to_config(out_T, out_joints, mse_m2)
@@ -469,7 +503,8 @@ def retarget_fingertips(
             "weights": list(config.weights),
             "smoothness_unit": config.smoothness_unit,
             "max_nfev": config.max_nfev,
-            "steps_in_collision": int(np.sum(out_d[:, 5] > 0)) if is_free is not None else None,
+            "steps_in_collision": int(np.sum(out_d[:, 5] > 0)) if checked else None,
+            "max_penetration_mm": float(np.max(out_pen)) if penetration is not None else None,
         },
     )
     log.info(
@@ -488,6 +523,7 @@ def retarget_demonstration(
     config: RetargetConfig | None = None,
     T_hwrist_rwrist: np.ndarray | None = None,
     progress: bool = False,
+    penetration: Penetration | None = None,
 ) -> RetargetResult:
     """Retarget a :class:`retarget.demonstration.Demonstration` to the SAH (virtual fingers, then per step).
 
@@ -498,16 +534,17 @@ def retarget_demonstration(
         config: :class:`RetargetConfig`.
         T_hwrist_rwrist: rT_h; default :func:`palm_alignment`.
         progress: tqdm progress bar over the steps.
+        penetration: d6 with the depth of the collision, see :func:`retarget_fingertips`.
     """
     config = config or RetargetConfig()
-    if is_free is None:
+    if is_free is None and penetration is None:
         log.warning("retargeting %s without a collision check: d6 = 0", demo.object)
     vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
     log.info("%s: %s", demo.object, vf.describe())
     targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf, 1e-3 * config.pad_clearance_mm)
     result = retarget_fingertips(
         targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,
-        progress=progress,
+        progress=progress, penetration=penetration,
     )  # fmt: skip
     meta = dict(result.meta)
     meta.update({"demonstration": demo.path, "object": demo.object, "grasp_type": demo.grasp_type})

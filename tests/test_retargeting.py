@@ -77,6 +77,27 @@ def test_collision_term_moves_the_wrist_out_of_a_forbidden_region():
     assert res.meta["steps_in_collision"] == 0
 
 
+def test_depth_graded_collision_term_leaves_a_plateau_the_0_1_term_cannot():
+    T, joints, tips = sah_trajectory(n=6, seed=1)
+    # The same wall as above: the first step starts 4 mm or more inside it, without escape restarts.
+    x_max = float(T[:, 0, 3].min()) - 0.004
+
+    def is_free(q):
+        return q[0] <= x_max
+
+    def penetration(q):
+        assert q.shape == (19,)
+        return max(0.0, q[0] - x_max)
+
+    plateau = retarget_fingertips(tips, T, np.eye(4), is_free=is_free, joints0=joints[0])
+    assert plateau.meta["steps_in_collision"] > 0  # the 0/1 term alone: stuck inside from the start
+    res = retarget_fingertips(tips, T, np.eye(4), joints0=joints[0], penetration=penetration)
+    assert res.meta["steps_in_collision"] == 0
+    assert res.meta["max_penetration_mm"] == 0.0
+    assert np.all(res.T_object_wrist[:, 0, 3] <= x_max)
+    assert np.max(res.fingertip_error_mm) < CONSTRAINED_TOL_MM, res.fingertip_error_mm.max()
+
+
 def test_sigma_r_is_symmetric_psd_and_maps_back_to_the_fingertip_covariance():
     T, joints, tips = sah_trajectory(n=3, seed=2)
     far = tips.copy()

@@ -96,6 +96,25 @@ def test_table_contact(ham_arc):
         assert c.point_world[2] < 1e-3 and c.normal_world[2] > 0.99
 
 
+def test_penetration_depth_sums_the_deepest_point_of_each_pair(ham_arc):
+    w = ham_arc
+    q = q_down([0.3, 0.2, 0.3])
+    d = w.signed_distance(q)
+    assert w.penetration_m(q) == 0.0
+    q[2] -= d + 0.004
+    depth = w.penetration_m(q)
+    # the hand's contacts, independently: the deepest point of each (link, body) pair
+    deepest = {}
+    for c in w.hand_contacts(q):
+        deepest[(c.link, c.other)] = max(deepest.get((c.link, c.other), 0.0), -c.distance_m)
+    assert depth == pytest.approx(sum(deepest.values()), abs=1e-9)
+    assert depth >= 0.004 - SHIFT_TOL_M
+    # 2 mm lower, every pair already in goes 2 mm deeper
+    q2 = q.copy()
+    q2[2] -= 0.002
+    assert w.penetration_m(q2) >= depth + len(deepest) * (0.002 - SHIFT_TOL_M)
+
+
 def test_obstacle_contact(ham_arc):
     w = ham_arc
     q = q_down([0.0, 0.0775, 0.3])  # above the left wall, fingers into it
