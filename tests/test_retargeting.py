@@ -147,6 +147,8 @@ def test_palm_alignment_keeps_the_axes():
         ({"weights": (1, 2, 3)}, "weights"),
         ({"smoothness_unit": "grad"}, "smoothness_unit"),
         ({"max_nfev": 0}, "max_nfev"),
+        ({"penetration_weight_per_mm": -1.0}, "penetration_weight_per_mm"),
+        ({"thumb_base_seed_deg": float("nan")}, "thumb_base_seed_deg"),
     ],
 )
 def test_invalid_config(kwargs, match):
