@@ -46,9 +46,7 @@ def object_frame_is_free(world: World, T_world_object: np.ndarray) -> Callable[[
     T_world_object = np.asarray(T_world_object, dtype=float)
 
     def is_free(q_object: np.ndarray) -> bool:
-        q_world = np.array(q_object, dtype=float)
-        q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
-        return bool(world.is_free(q_world))
+        return bool(world.is_free(_world_q(T_world_object, q_object)))
 
     return is_free
 
@@ -63,11 +61,16 @@ def object_frame_penetration(world: World, T_world_object: np.ndarray) -> Callab
     T_world_object = np.asarray(T_world_object, dtype=float)
 
     def penetration(q_object: np.ndarray) -> float:
-        q_world = np.array(q_object, dtype=float)
-        q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
-        return world.penetration_m(q_world)
+        return world.penetration_m(_world_q(T_world_object, q_object))
 
     return penetration
+
+
+def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
+    """q (19,) with its wrist pose moved from the object frame into the world frame; joints unchanged."""
+    q_world = np.array(q_object, dtype=float)
+    q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
+    return q_world
 
 
 def signed_distance_fn(world: World) -> Callable[[np.ndarray, np.ndarray], float]:
