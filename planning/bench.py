@@ -58,11 +58,11 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.09), q (19,) [m, rad];
+#: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.17), q (19,) [m, rad];
 #: the grasp of ``tests/test_autograsp.py``.
-HAM_GRASP_Q = (0.0231, 0.0267, 0.2922, -2.1117, 1.9064, 0.5296,
-               1.0593, 0.0, 0.1745, 0.1745, 0.0, 0.349, 0.1745,
-               0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745)  # fmt: skip
+HAM_GRASP_Q = (-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
+               1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745,
+               0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745)  # fmt: skip
 
 PLANNING_SCENES = ("ham", "chips_between_cans", "jam_hole")
 

@@ -1,7 +1,7 @@
 """Learned strategies built in code, so planner tests need neither a demonstration nor retargeting.
 
 ``ham_top_down_trajectory`` is the direct transformation of a straight top-down approach that ends at a
-hand-placed grasp of the ham can (the grasp of ``tests/test_autograsp.py``, epsilon ~0.09): 15 cm above
+hand-placed grasp of the ham can (the grasp of ``tests/test_autograsp.py``, epsilon ~0.17): 15 cm above
 the grasp with the hand open, a minimum-jerk descent, the fingers pre-shaped on the way.
 """
 

@@ -18,15 +18,16 @@ STOP_REASON_M = 0.0015  # a stopped joint must move a link within this distance 
 # Hand-placed grasps, found by a local search around a nominal placement and checked by eye on renders.
 # q = [wrist position (m), wrist rotation vector (rad), 13 SAH joints (rad) in sah.JOINT_NAMES order].
 # Ham can (10 x 5.5 x 8 cm, upright at the origin), from above: the fingers point down (hand z ~ world
-# -z, tilted 25 deg), the palm faces -y; the thumb (base rotated 61 deg) and the three fingertips pinch
-# the can's two long faces near its top edge. Fingers pre-flexed 20/10 deg, abduction 0.
-HAM_FROM_ABOVE = [0.0231, 0.0267, 0.2922, -2.1117, 1.9064, 0.5296,
-                  1.0593, 0.0, 0.1745, 0.1745, 0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745, 0.0, 0.349, 0.1745]
-# Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm faces
-# +x (towards the can), the fingers point -y and curl around the can in a horizontal plane at z ~ 0.12 m;
-# the thumb module (base rotated 88 deg) closes the wrap on the other side.
-CHIPS_WRAPPED = [-0.0484, 0.1472, 0.1102, 1.6252, 0.0437, -0.1083,
-                 1.5293, 0.0, 0.1745, 0.1745, 0.0, 0.3191, 0.1745, 0.0, 0.3191, 0.1745, 0.0, 0.3191, 0.1745]
+# -z, tilted 25 deg towards -y), the palm faces +y (tilted 24 deg down); the opposed thumb (base 86 deg)
+# on the +y face, index and middle on the -y face (the ring passes beyond the can's end), low on the can.
+# Fingers pre-flexed 0/10 deg, thumb 18/10 deg, abduction 0. epsilon ~0.17.
+HAM_FROM_ABOVE = [-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
+                  1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745]
+# Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm on the
+# can facing +x, the fingers point -y and curl around the can in near-horizontal planes at z 0.12-0.21 m;
+# the thumb (base 79 deg) closes the wrap over them on the other side. epsilon ~0.12.
+CHIPS_WRAPPED = [-0.06, 0.136, 0.1102, 1.3546, 0.0739, 0.0481,
+                 1.3813, 0.0, 0.0375, 0.1745, 0.0, 0.0276, 0.1745, 0.0, 0.0276, 0.1745, 0.0, 0.0276, 0.1745]
 
 
 @pytest.fixture(scope="module")
@@ -92,8 +93,16 @@ def test_open_hand_far_away_closes_fully_and_scores_zero(ham):
     q = np.concatenate([[0.3, 0.3, 0.5], [0.0, 0.0, 0.0], sah.rest_joints()])
     res = closer.close(q)
     assert res.quality == 0.0 and not res.in_collision and len(res.contact_points_world) == 0
-    upper = sah.JOINT_LIMITS[closer.closing, 1]
-    assert np.abs(res.closed_q[6 + closer.closing] - upper).max() < 1e-12  # every finger at its limit
+    # the opposed thumb and the index close on each other (a pinch of nothing) and stop there, touching;
+    # the middle and ring fingers reach their limits
+    closed = dict(zip((sah.JOINT_NAMES[j] for j in closer.closing), res.closed_q[6 + closer.closing]))
+    upper = dict(zip((sah.JOINT_NAMES[j] for j in closer.closing), sah.JOINT_LIMITS[closer.closing, 1]))
+    for name in ("middle_prox", "middle_mid", "ring_prox", "ring_mid"):
+        assert abs(closed[name] - upper[name]) < 1e-12
+    for name in ("thumb_prox", "thumb_mid", "index_prox", "index_mid"):
+        assert closed[name] < upper[name] - 0.1
+    touching = {(c.link, c.other) for c in ham.hand_contacts(res.closed_q, max_distance_m=STOP_REASON_M)}
+    assert ("thumb_distal", "self:index_distal") in touching
 
 
 def test_configuration_in_collision_scores_zero_without_closing(ham):

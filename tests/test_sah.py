@@ -168,3 +168,23 @@ def test_config_cov_is_pseudo_inverse_mapping():
     assert np.linalg.matrix_rank(cov, tol=1e-9 * eig.max()) <= 12  # degenerate by design
     # mapped back through J it recovers the fingertip covariance (J has full row rank here)
     np.testing.assert_allclose(J @ cov @ J.T, cov_tips, atol=1e-9 * 0.008**2 * 1e3)
+
+
+@pytest.mark.parametrize("thumb_base_deg", [0.0, 45.0, 90.0])
+def test_thumb_knuckle_frame_matches_cisst(thumb_base_deg):
+    """The thumb's knuckle frame against cisst's ``robSAHThumb`` (``Rb1`` turned by the base rotation).
+
+    cisst's thumb frame at thumb_base = 0 has the thumb along (0, 0.57358, 0.81915) and its flexion closing
+    towards (0, -0.81915, 0.57358): in the palm plane, towards the index. The base turns it about -z, so
+    at 90 deg the thumb closes towards (-0.81915, 0, 0.57358), back towards the palm (opposition).
+    """
+    j = sah.rest_joints()
+    j[sah.JOINT_NAMES.index("thumb_base")] = np.deg2rad(thumb_base_deg)
+    j[sah.JOINT_NAMES.index("thumb_abd")] = 0.0
+    R = sah.fk(j)["thumb_knuckle"][:3, :3]
+    turn = Rotation.from_rotvec([0.0, 0.0, -np.deg2rad(thumb_base_deg)]).as_matrix()
+    along = turn @ [0.0, 0.57358, 0.81915]
+    closing = turn @ [0.0, -0.81915, 0.57358]
+    tol = 0.005  # the URDF tilts the thumb 35.2 deg (libmove3d), cisst 35.0 deg
+    assert np.abs(R[:, 2] - along).max() < tol  # the thumb's axis
+    assert np.abs(R[:, 0] - closing).max() < tol  # a positive thumb_prox (about +y) closes towards +x
