@@ -264,6 +264,7 @@ def prepare_strategy(
             _sha256_file(demo_path),
             repr(config),
         ]
+        + [_sha256_file(assets.hand_urdf(h)) for h in ("sah", "human")]
         + [_sha256_file(f) for f in _scene_files(demo_scene)]
     )
     traj_path = cache / f"{scene.strategy}-{traj_key[:16]}.traj.npz"
@@ -275,7 +276,7 @@ def prepare_strategy(
     params = VariationParams()
     model_key = _digest(
         [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), _sha256_file(traj_path)]
-        + [json.dumps(params.to_dict(), sort_keys=True)]
+        + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]
         + [_sha256_file(f) for f in _scene_files(scene)]
     )
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"

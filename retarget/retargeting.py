@@ -119,11 +119,10 @@ class RetargetConfig:
             ``w6 + penetration_weight_per_mm * depth_mm`` (see the module docstring); 1 mm of depth
             outweighs 1 m of fingertip error, so the search leaves the collision first.
         thumb_base_seed_deg: the thumb's opposition at the first step's seed (without ``joints0``). Not
-            the rest pose's 90 deg, its upper limit: started on the bound, the search never left it
-            (every retargeted demonstration kept 90 deg, the thumb's pad facing away from the fingers,
-            113-138 deg off). Seeded at 60 deg the ham strategy's fingertip RMSE fell from 10.9 to 5.3 mm
-            and the share of its last-marginal draws that close to epsilon >= 0.05 from 0-6 % to 24 %
-            (45 deg: 11 %).
+            the rest pose's 90 deg, its upper limit: started on the bound, the search rarely leaves it.
+            Measured with the corrected thumb (see ``assets/hands/sah/README.md``): seeded at 60 deg, 73 % of
+            the ham strategy's collision-free last-marginal draws close to epsilon >= 0.05 (22 of 80
+            draws free) and the jam's fingertip RMSE is 5.9 mm; seeded at 85 deg, 50 % and 27.6 mm.
     """
 
     weights: tuple[float, ...] = PAPER_WEIGHTS

@@ -151,6 +151,37 @@ def test_trial_streams_depend_only_on_the_key():
         assert not np.array_equal(g.random(4), a)
 
 
+def test_strategy_cache_keys_follow_the_hand_model(tmp_path, monkeypatch, caplog):
+    """Editing the SAH's URDF must miss the strategy cache (it once did not: a corrected hand reused old
+    strategies). The retargeting is replaced by a stub that stops at the cache miss."""
+    import assets
+    import planning.strategy
+    from planning.table1 import prepare_strategy
+
+    class CacheMiss(Exception):
+        pass
+
+    def stop(*args, **kwargs):
+        raise CacheMiss
+
+    monkeypatch.setattr(planning.strategy, "retarget_in_scene", stop)
+    original = assets.hand_urdf
+
+    def missed_path() -> str:
+        caplog.clear()
+        with caplog.at_level("INFO", logger="planning.table1"), pytest.raises(CacheMiss):
+            prepare_strategy("ham", tmp_path / "cache")
+        (line,) = [r.getMessage() for r in caplog.records if "cache miss" in r.getMessage()]
+        return line.split("-> ")[1]
+
+    first = missed_path()
+    edited = tmp_path / "sah.urdf"
+    edited.write_text(original("sah").read_text() + "<!-- edited -->\n")
+    monkeypatch.setattr(assets, "hand_urdf", lambda name: edited if name == "sah" else original(name))
+    second = missed_path()
+    assert first != second and first.endswith(".traj.npz") and second.endswith(".traj.npz")
+
+
 def test_names_and_config_are_validated():
     assert parse_names(None, ROWS, "--rows") == ROWS
     assert parse_names("jam_hole, ham,ham", ROWS, "--rows") == ("jam_hole", "ham")
