@@ -59,7 +59,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.17), q (19,) [m, rad];
-#: the grasp of ``tests/test_autograsp.py``.
+#: the grasp of ``tests/test_autograsp.py``. The ham can (10 x 5.5 x 8 cm) stands upright at the origin;
+#: the fingers point down (hand z ~ world -z, tilted 25 deg towards -y), the palm faces +y (tilted 24 deg
+#: down); the opposed thumb (base 86 deg) is on the +y face, index and middle on the -y face (the ring
+#: passes beyond the can's end), low on the can. Fingers pre-flexed 0/10 deg, thumb 18/10 deg.
 HAM_GRASP_Q = (-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
                1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745,
                0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745)  # fmt: skip

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from planning.autograsp import AutoGraspConfig, HandCloser, _reduce_patch
+from planning.bench import HAM_GRASP_Q
 from planning.world import World
 from retarget import sah
 
@@ -17,12 +18,7 @@ STOP_REASON_M = 0.0015  # a stopped joint must move a link within this distance 
 
 # Hand-placed grasps, found by a local search around a nominal placement and checked by eye on renders.
 # q = [wrist position (m), wrist rotation vector (rad), 13 SAH joints (rad) in sah.JOINT_NAMES order].
-# Ham can (10 x 5.5 x 8 cm, upright at the origin), from above: the fingers point down (hand z ~ world
-# -z, tilted 25 deg towards -y), the palm faces +y (tilted 24 deg down); the opposed thumb (base 86 deg)
-# on the +y face, index and middle on the -y face (the ring passes beyond the can's end), low on the can.
-# Fingers pre-flexed 0/10 deg, thumb 18/10 deg, abduction 0. epsilon ~0.17.
-HAM_FROM_ABOVE = [-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
-                  1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745]
+HAM_FROM_ABOVE = list(HAM_GRASP_Q)  # ham can from above, epsilon ~0.17 (described in planning/bench.py)
 # Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm on the
 # can facing +x, the fingers point -y and curl around the can in near-horizontal planes at z 0.12-0.21 m;
 # the thumb (base 79 deg) closes the wrap over them on the other side. epsilon ~0.12.
@@ -95,8 +91,9 @@ def test_open_hand_far_away_closes_fully_and_scores_zero(ham):
     assert res.quality == 0.0 and not res.in_collision and len(res.contact_points_world) == 0
     # the opposed thumb and the index close on each other (a pinch of nothing) and stop there, touching;
     # the middle and ring fingers reach their limits
-    closed = dict(zip((sah.JOINT_NAMES[j] for j in closer.closing), res.closed_q[6 + closer.closing]))
-    upper = dict(zip((sah.JOINT_NAMES[j] for j in closer.closing), sah.JOINT_LIMITS[closer.closing, 1]))
+    names = [sah.JOINT_NAMES[j] for j in closer.closing]
+    closed = dict(zip(names, res.closed_q[6 + closer.closing], strict=True))
+    upper = dict(zip(names, sah.JOINT_LIMITS[closer.closing, 1], strict=True))
     for name in ("middle_prox", "middle_mid", "ring_prox", "ring_mid"):
         assert abs(closed[name] - upper[name]) < 1e-12
     for name in ("thumb_prox", "thumb_mid", "index_prox", "index_mid"):
