@@ -7,13 +7,14 @@ checker, the hand closer (phi_o) and the learned strategies, and runs one planni
   (probability ``beta`` uniform, else a random time step's marginal of a random strategy); goal samples
   are the draws of a strategy's last time step;
 * ``baseline``: the paper's "simple RRT": the same tree code with single-step EXTEND (no CONNECT) and
-  uniform samples, drawing its target from N(b_T, B_T) with probability ``goal_probability`` (0.1); a
-  goal target is reached when the nearest node is within one step of it;
+  uniform samples, drawing its target from N(b_T, B_T) with probability ``goal_probability`` (0.1);
 * ``ompl``: OMPL's RRTConnect (:func:`~planning.ompl_peer.plan_ompl`) from the same roots, with a goal
   region of N(b_T, B_T) draws whose quality reaches the threshold.
 
 All three root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
-and use the same goal test: phi_o >= ``quality_threshold`` (0.05).
+and use the same goal test: phi_o >= ``quality_threshold`` (0.05). Ours (learned and baseline) runs it
+where an extension towards a goal sample ended, if within ``goal_radius`` of the sample; OMPL's goal
+region holds collision-free N(b_T, B_T) draws only.
 
 The strategies' marginals P(X_t | O) live in the object frame; their object prior P(O) is replaced by
 the scene's localization N(mu_o, Sigma_o), so a strategy learned on one object plans on another.
@@ -61,6 +62,8 @@ class PlanningSettings:
         max_nodes: node limit of our tree.
         quality_threshold: epsilon; phi_o >= it is a valid grasp.
         sample_batch: draws of P(Y) per vectorized call.
+        goal_radius: phi_o runs where an extension towards a goal sample ended within this distance of
+            it (see :class:`~planning.rrt_connect.PlannerConfig`); the same for learned and baseline.
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q``, ``tree_parent``; learned and
             baseline planners only), for plots.
     """
@@ -73,6 +76,7 @@ class PlanningSettings:
     max_nodes: int = 50_000
     quality_threshold: float = 0.05
     sample_batch: int = 256
+    goal_radius: float = 3.0
     record_tree: bool = False
 
     def __post_init__(self):
@@ -223,6 +227,7 @@ class GraspPlanner:
                 max_nodes=settings.max_nodes,
                 quality_threshold=settings.quality_threshold,
                 connect=settings.planner == "learned",
+                goal_radius=settings.goal_radius,
                 record_tree=settings.record_tree,
             )
             result = rrt_connect(

@@ -12,8 +12,9 @@ does), so a learned sampler is just another ``sample_fn``:
 
 The tree is a forest rooted at the start configurations. Each iteration draws ``y``, finds the nearest
 node and extends towards ``y`` with the CONNECT heuristic (repeated unit steps until ``y`` is reached or
-an edge is blocked). When a goal sample has been reached, i.e. added to the tree, phi_o is evaluated
-there; a quality ``>= quality_threshold`` ends the search with the path from its root.
+an edge is blocked). When an extension towards a goal sample added a node within ``goal_radius`` of it
+(the sample itself, or where an obstacle, usually the object, stopped the extension), phi_o is evaluated
+at that node; a quality ``>= quality_threshold`` ends the search with the path from its root.
 """
 
 from __future__ import annotations
@@ -38,6 +39,13 @@ class PlannerConfig:
         quality_threshold: epsilon; a grasp with phi_o >= it is valid (the paper's 0.05).
         step: the longest edge added in one extension step, in configuration-space units.
         connect: extend with CONNECT (repeated steps); ``False`` gives single-step EXTEND.
+        goal_radius: phi_o is evaluated at the last node an extension towards a goal sample added when
+            that node is within this distance of the sample (configuration-space units; 0: only when the
+            sample itself was reached). The paper evaluates phi_o whenever "the RRT was extended by a
+            sample with k = T_s": a last-step sample often has a finger inside the object, the extension
+            towards it stops at the surface, and closing the hand there is the grasp. The default, 3 units
+            (3 cm, 15 deg of wrist or 30 deg of a joint with the hand space's defaults), skips extensions
+            blocked far from their sample, where closing the hand cannot touch what the sample touched.
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q`` (N, d) nodes, ``tree_parent``
             (N,) parent index, -1 for the roots), e.g. for plotting; off by default (copies the arrays).
     """
@@ -47,11 +55,14 @@ class PlannerConfig:
     quality_threshold: float = 0.05
     step: float = 1.0
     connect: bool = True
+    goal_radius: float = 3.0
     record_tree: bool = False
 
     def __post_init__(self):
-        if not (self.time_limit_s > 0 and self.max_nodes > 0 and self.step > 0):
-            raise ValueError(f"PlannerConfig: time_limit_s, max_nodes and step must be > 0, found {self}")
+        if not (self.time_limit_s > 0 and self.max_nodes > 0 and self.step > 0 and self.goal_radius >= 0):
+            raise ValueError(
+                f"PlannerConfig: time_limit_s, max_nodes and step must be > 0, goal_radius >= 0, found {self}"
+            )
 
 
 @dataclass(frozen=True)
@@ -181,7 +192,7 @@ def rrt_connect(
         it += 1
         y, is_goal = sample_fn(rng)
         i = forest.nearest(y)
-        reached = False
+        reached = added = False
         while forest.count < config.max_nodes:
             q_near = forest.q[i]
             d = space.distance(q_near, y)
@@ -193,9 +204,10 @@ def rrt_connect(
             if forest.count >= len(forest.q):
                 _grow(forest)
             i = forest.add(q_new, i)
+            added = True
             if reached or not config.connect:
                 break
-        if is_goal and reached:
+        if is_goal and added and (reached or space.distance(forest.q[i], y) <= config.goal_radius):
             t = time.perf_counter()
             quality, payload = quality_fn(forest.q[i])
             stats["t_q"] += time.perf_counter() - t

@@ -89,3 +89,35 @@ def test_hand_space_distance_and_interpolation():
     assert space.distance(a, mid) == pytest.approx(expected / 2, rel=1e-9)
     feats = space.features(np.stack([a, b]))
     np.testing.assert_allclose(space.distance_to(feats, b), [expected, 0.0], atol=1e-7)
+
+
+def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops():
+    """Last-step samples of a grasp lie partly inside the object; an extension towards one stops at the
+    surface, which is where closing the hand makes a grasp. ``goal_radius`` admits that node."""
+    centre, radius, step = np.array([0.8, 0.8]), 0.02, 0.02
+
+    def free(a, b):
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / RESOLUTION)) + 1)
+        return all(np.linalg.norm(a + s * (b - a) - centre) > radius for s in np.linspace(0, 1, n))
+
+    def goal_inside(rng):
+        if rng.random() < 0.1:
+            return centre + rng.normal(scale=0.004, size=2).clip(-0.01, 0.01), True  # inside the disc
+        return rng.uniform(0, 1, size=2), False
+
+    def touching(q):  # 1 on the surface, 0 from 4 cm away
+        return max(0.0, 1.0 - (np.linalg.norm(q - centre) - radius) / 0.04), None
+
+    def run(goal_radius):
+        return rrt_connect(np.array([[0.1, 0.1]]), goal_inside, free, touching, EuclideanSpace((step, step)),
+                           np.random.default_rng(3),
+                           PlannerConfig(time_limit_s=30, max_nodes=3000, quality_threshold=0.5,
+                                         goal_radius=goal_radius))
+
+    strict = run(0.0)
+    assert not strict.success and strict.quality_evaluations == 0  # no sample can ever be reached
+    res = run(3.0)
+    assert res.success, res.message
+    end = res.path[-1]
+    assert radius < np.linalg.norm(end - centre) <= radius + step  # stopped within a step of the surface
+    assert all(free(a, b) for a, b in zip(res.path[:-1], res.path[1:], strict=True))
