@@ -11,8 +11,9 @@ and for constrained steps ``C_t`` (1-vector, the constraint value).
 * f_2t, smoothness: ``BetweenFactorPose3(W_t, W_t+1, identity)`` and ``BetweenFactorVector(J_t, J_t+1, 0)``
   with the diagonal S_t of :meth:`VariationParams.smoothness_stds`.
 * f_3t, the constraint ``C_t = phi(W_t, J_t)`` linearized at ``(W0, J0)``: error
-  ``C_t - phi0 - grad . [Log(W0^-1 W_t), J_t - J0]`` with variance 1e-10 (the paper's stand-in for a delta);
-  f_4t is a ``PriorFactorVector`` ``N(r_t, R_t)`` on ``C_t``.
+  ``C_t - phi0 - G [Log(W0^-1 W_t), J_t - J0]`` with variance 1e-10 (the paper's stand-in for a delta);
+  f_4t is a ``PriorFactorVector`` ``N(r_t, R_t)`` on ``C_t``. ``phi`` may be a vector (one signed distance
+  per hand link), then ``C_t`` and ``r_t`` are vectors and ``G`` has one row per component.
 
 Jacobians are with respect to GTSAM's right (body) perturbations ``T Exp(xi)``, ``xi = [omega, v]``.
 """
@@ -43,7 +44,7 @@ __all__ = [
 
 N_JOINTS = 13
 FingertipMap = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-ConstraintFn = Callable[[np.ndarray, np.ndarray], float]
+ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
 
 
 def demonstration_error(
@@ -176,22 +177,27 @@ def linear_constraint_error(
     J: np.ndarray,
     W0: gtsam.Pose3,
     J0: np.ndarray,
-    phi0: float,
+    phi0,
     grad: np.ndarray,
     jacobians: bool = False,
 ):
-    """f_3t error ``C - phi0 - grad . [Log(W0^-1 W), J - J0]`` (1,), optionally with Jacobians.
+    """f_3t error ``C - phi0 - G [Log(W0^-1 W), J - J0]`` (m,), optionally with Jacobians.
+
+    ``phi0`` is a scalar or (m,) and ``grad`` (19,) or ``G`` (m, 19): one row per constraint (e.g. one per
+    hand link near an obstacle).
 
     Returns:
-        ``e`` (1,), or ``(e, H_C (1, 1), H_W (1, 6), H_J (1, 13))``.
+        ``e`` (m,), or ``(e, H_C (m, m), H_W (m, 6), H_J (m, 13))``.
     """
+    phi0 = np.atleast_1d(np.asarray(phi0, dtype=float))
+    G = np.atleast_2d(np.asarray(grad, dtype=float))
     d = W0.between(W)
     xi = gtsam.Pose3.Logmap(d)
-    e = np.array([C[0] - phi0 - grad[:6] @ xi - grad[6:] @ (np.asarray(J) - J0)])
+    e = np.asarray(C, dtype=float) - phi0 - G[:, :6] @ xi - G[:, 6:] @ (np.asarray(J) - J0)
     if not jacobians:
         return e
-    H_W = np.asfortranarray(-(grad[:6] @ gtsam.Pose3.LogmapDerivative(d))[None, :])
-    return e, np.ones((1, 1), order="F"), H_W, np.asfortranarray(-grad[None, 6:])
+    H_W = np.asfortranarray(-(G[:, :6] @ gtsam.Pose3.LogmapDerivative(d)))
+    return e, np.asfortranarray(np.eye(len(e))), H_W, np.asfortranarray(-G[:, 6:])
 
 
 def constraint_factors(
@@ -200,57 +206,68 @@ def constraint_factors(
     key_j: int,
     T_world_wrist0: np.ndarray,
     joints0: np.ndarray,
-    phi0: float,
+    phi0,
     grad: np.ndarray,
-    r_t: float,
+    r_t,
     R_std: float,
     delta_variance: float,
 ) -> list:
-    """f_3t (linearized at ``(T_world_wrist0, joints0)``) and f_4t ``N(r_t, R_std^2)`` on ``C_t``.
+    """f_3t (linearized at ``(T_world_wrist0, joints0)``) and f_4t ``N(r_t, R_std^2 I)`` on ``C_t``.
 
     Args:
-        grad: (19,) gradient of phi in the tangent ``[omega, v, joints]`` at the linearization point.
+        phi0: the constraint value(s) at the linearization point, scalar or (m,).
+        grad: (19,) or (m, 19) gradient(s) of phi in the tangent ``[omega, v, joints]`` there.
+        r_t: the target(s), scalar or (m,); ``C_t`` is an m-vector.
     """
     W0 = gtsam.Pose3(np.asarray(T_world_wrist0, dtype=float))
     J0 = np.array(joints0, dtype=float)
-    g = np.array(grad, dtype=float)
+    phi = np.atleast_1d(np.asarray(phi0, dtype=float))
+    G = np.atleast_2d(np.asarray(grad, dtype=float))
+    r = np.atleast_1d(np.asarray(r_t, dtype=float))
+    m = len(phi)
+    if G.shape != (m, 19) or r.shape != (m,):
+        raise InputError(f"constraint factors: phi0 {phi.shape}, grad {G.shape} and r_t {r.shape} disagree")
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         C = values.atVector(key_c)
         W = values.atPose3(key_w)
         J = values.atVector(key_j)
         if H is None:
-            return linear_constraint_error(C, W, J, W0, J0, phi0, g)
-        e, H[0], H[1], H[2] = linear_constraint_error(C, W, J, W0, J0, phi0, g, jacobians=True)
+            return linear_constraint_error(C, W, J, W0, J0, phi, G)
+        e, H[0], H[1], H[2] = linear_constraint_error(C, W, J, W0, J0, phi, G, jacobians=True)
         return e
 
-    delta = gtsam.noiseModel.Isotropic.Sigma(1, math.sqrt(delta_variance))
+    delta = gtsam.noiseModel.Isotropic.Sigma(m, math.sqrt(delta_variance))
     return [
         gtsam.CustomFactor(delta, [key_c, key_w, key_j], error),
-        gtsam.PriorFactorVector(key_c, np.array([r_t]), gtsam.noiseModel.Isotropic.Sigma(1, R_std)),
+        gtsam.PriorFactorVector(key_c, r, gtsam.noiseModel.Isotropic.Sigma(m, R_std)),
     ]
 
 
 def constraint_gradient(
     constraint_fn: ConstraintFn, T_world_wrist: np.ndarray, joints: np.ndarray, step: float
-) -> tuple[float, np.ndarray]:
-    """phi and its gradient (19,) in the tangent ``[omega, v, joints]`` by central differences.
+) -> tuple:
+    """phi and its gradient in the tangent ``[omega, v, joints]`` by central differences.
 
-    The wrist is perturbed on the right, ``T_world_wrist Exp(+-step e_i)``, as GTSAM's retract.
+    A scalar ``constraint_fn`` gives ``(phi0 float, grad (19,))``, a vector one (m,) gives
+    ``(phi0 (m,), grad (m, 19))``. The wrist is perturbed on the right, ``T_world_wrist Exp(+-step e_i)``,
+    as GTSAM's retract.
     """
     T = np.asarray(T_world_wrist, dtype=float)
     joints = np.asarray(joints, dtype=float)
-    phi0 = float(constraint_fn(T, joints))
-    grad = np.zeros(19)
+    value = np.asarray(constraint_fn(T, joints), dtype=float)
+    phi0 = np.atleast_1d(value)
+    grad = np.zeros((len(phi0), 19))
     for i in range(19):
-        plus, minus = [], []
-        for sign, out in ((1.0, plus), (-1.0, minus)):
-            d = np.zeros(19)
-            d[i] = sign * step
-            out.append(float(constraint_fn(retract(T, d[:6]), joints + d[6:])))
-        grad[i] = (plus[0] - minus[0]) / (2 * step)
-    if not (math.isfinite(phi0) and np.all(np.isfinite(grad))):
-        raise InputError(f"constraint function returned a non-finite value (phi = {phi0})")
+        d = np.zeros(19)
+        d[i] = step
+        plus = np.atleast_1d(np.asarray(constraint_fn(retract(T, d[:6]), joints + d[6:]), dtype=float))
+        minus = np.atleast_1d(np.asarray(constraint_fn(retract(T, -d[:6]), joints - d[6:]), dtype=float))
+        grad[:, i] = (plus - minus) / (2 * step)
+    if not (np.all(np.isfinite(phi0)) and np.all(np.isfinite(grad))):
+        raise InputError(f"constraint function returned a non-finite value (phi = {phi0.tolist()})")
+    if value.ndim == 0:
+        return float(phi0[0]), grad[0]
     return phi0, grad
 
 

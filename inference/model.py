@@ -5,13 +5,22 @@ The graph (paper section V, see :mod:`inference.factors`) is P(O) P(X_1..X_T | O
 ``constraint_fn``, linearized constraint factors f_3t/f_4t. It is solved by Gauss-Newton from
 ``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)``.
 
-Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))`` (e.g. the
-signed distance of the hand to the scene) is evaluated at ``mu_o tau_r(t)``; steps with ``phi`` below
-``activation_distance`` get a variable ``C_t``, a factor ``C_t = phi0 + grad phi . dx`` (phi linearized by
-central differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
-``r_t = max(phi(mu_o tau_r(t)), clearance)`` and ``R_t = constraint_std^2``. Linearize, solve, take the
-marginal means as the new linearization point and repeat until they move less than ``mean_tolerance``
-(max-norm over all steps of the tangent change [rad, m]); ``iterations`` counts the solves.
+Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))``, a scalar or a
+vector (e.g. the signed distance of each hand link to the table and obstacles), is evaluated at
+``mu_o tau_r(t)``; its components below ``activation_distance`` are active. A step with active components gets
+a vector variable ``C_t``, a factor ``C_t = phi0 + G dx`` (the active rows of phi linearized by central
+differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
+``r_t = phi(mu_o tau_r(t))`` clipped to ``[clearance, activation_distance]`` and ``R_t = constraint_std^2 I``.
+Linearize, solve (with a trust region: priors ``N(x0, trust_stds)`` tying each constrained step to its
+linearization point ``x0``, so that one solve stays where the linearization holds), move the linearization
+point half way (``relinearization_damping``) to the new means and repeat until they move less than
+``mean_tolerance`` (max-norm over all steps of the tangent change [rad, m]);
+components that come below the activation distance on the way join the active set (it only grows, and a
+grown set is solved once more before convergence is declared); ``iterations`` counts the solves. The final
+solve drops the trust region (at a fixed point its priors have zero error), so that the marginals are those
+of the paper's graph. One constraint per link matters: the minimum over all links switches between links
+from one linearization to the next (the fingers in one wall, the thumb in the other), and its single
+gradient never pushes both out.
 
 Conditioning on O (the marginals P(X_t | O = mu_o)): Gaussian conditioning deletes O's rows and columns from
 the information matrix, which is the Schur complement ``Sigma_x|o = Sigma_xx - Sigma_xo Sigma_oo^-1 Sigma_ox``
@@ -23,28 +32,6 @@ that includes O, which sits in every clique's separator. The means are the MAP o
 the constraints, relinearized as above). The wrist mean is returned in the object frame,
 ``T_object_wrist_mean = mu_o^-1 W_t``; the body-frame covariance is unchanged by that left multiplication.
 The full graph ``build_graph(..., fixed_object=False)`` is P(O) P(X | O) itself, for joint marginals.
-
-``.model.npz`` file.
-
-The graph (paper section V, see :mod:`inference.factors`) is P(O) P(X_1..X_T | O) with O ~ N(mu_o, Sigma_o)
-(``PriorFactorPose3``), the demonstration factors f_1t, the smoothness factors f_2t and, given a
-``constraint_fn``, linearized constraint factors f_3t/f_4t. It is solved by Gauss-Newton from
-``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)``.
-
-Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))`` (e.g. the
-signed distance of the hand to the scene) is evaluated at ``mu_o tau_r(t)``; steps with ``phi`` below
-``activation_distance`` get a variable ``C_t``, a factor ``C_t = phi0 + grad phi . dx`` (phi linearized by
-central differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
-``r_t = max(phi(mu_o tau_r(t)), clearance)`` and ``R_t = constraint_std^2``. Linearize, solve, take the
-marginal means as the new linearization point and repeat until they move less than ``mean_tolerance``
-(max-norm over all steps of the tangent change [rad, m]); ``iterations`` counts the solves.
-
-Conditioning on O: ``gtsam.Marginals`` gives the joint Gaussian of ``(O, W_t, J_t)`` (25x25, tangent at the
-solution, ``[omega_o, v_o, omega_w, v_w, joints]``). P(X_t | O = mu_o) is its Schur complement,
-``Sigma_x|o = Sigma_xx - Sigma_xo Sigma_oo^-1 Sigma_ox``, with mean shifted by
-``Sigma_xo Sigma_oo^-1 Log(O_hat^-1 mu_o)`` (zero without constraints, where O_hat = mu_o). The wrist mean is
-returned in the object frame, ``T_object_wrist_mean = mu_o^-1 W_t``; the body-frame covariance is unchanged
-by that left multiplication.
 
 ``.model.npz`` (``numpy.savez_compressed``, no pickles; written atomically):
 
@@ -118,7 +105,7 @@ _SOURCE_KEYS = (
     "object",
     "grasp_type",
 )
-ConstraintFn = Callable[[np.ndarray, np.ndarray], float]
+ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
 
 
 def key_o() -> int:
@@ -361,7 +348,8 @@ def build_graph(
         params: parameters (smoothness, constraint noise).
         cov_f1: (T, 19, 19) Sigma_r + Sigma_m (:func:`factor_covariances`).
         T_world_object: (4, 4) mu_o. cov_object: (6, 6) Sigma_o ``[omega, v]``.
-        linearizations: ``{t: (T_world_wrist0, joints0, phi0, grad (19,), r_t)}`` for constrained steps.
+        linearizations: ``{t: (T_world_wrist0, joints0, phi0 (m,), grad (m, 19), r_t (m,))}`` for constrained
+            steps (scalars and (19,) for one constraint).
         fixed_object: hold O fixed at ``T_world_object`` (the graph of P(X | O = mu_o); no O variable, no
             prior, ``cov_object`` unused).
     """
@@ -441,8 +429,8 @@ def solve(
         traj: the retargeted trajectory tau_r with Sigma_r(t).
         params: defaults if None.
         T_world_object, cov_object: the object prior (4, 4), (6, 6) ``[omega, v]``; the trajectory's if None.
-        constraint_fn: ``phi(T_world_wrist (4,4), joints (13,)) -> float`` (e.g. signed distance [m]); None
-            for no constraint factors.
+        constraint_fn: ``phi(T_world_wrist (4,4), joints (13,)) -> float or (m,)`` (e.g. signed distances
+            [m]); None for no constraint factors.
         fingertip_map: the Sigma_m mapping of :func:`inference.factors.modeling_covariance`.
 
     Raises:
@@ -458,16 +446,18 @@ def solve(
     n = traj.num_steps
     cov_f1 = factor_covariances(traj, params, fingertip_map)
 
-    # constrained steps and their targets r_t, fixed from tau_r in the scene
-    targets: dict[int, float] = {}
+    # constrained components per step: phi_i below the activation distance at tau_r or, as the means move,
+    # at any linearization point (the active set only grows); targets r_i = phi_i(tau_r) clipped to
+    # [clearance, activation]: keep the demonstrated distance, but at least the clearance
+    act_m, clear_m = params.activation_distance_mm * 1e-3, params.clearance_mm * 1e-3
+    active: dict[int, np.ndarray] = {}
+    phi_tau: list[np.ndarray] = []
     if constraint_fn is not None:
         T_world_wrist_tau = mu_o @ traj.T_object_wrist
-        for t in range(n):
-            phi = float(constraint_fn(T_world_wrist_tau[t], np.array(traj.joints[t])))
-            if not np.isfinite(phi):
-                raise InputError(f"constraint function returned {phi} at step {t}")
-            if phi < params.activation_distance_mm * 1e-3:
-                targets[t] = max(phi, params.clearance_mm * 1e-3)
+        phi_tau = [
+            _constraint_values(constraint_fn, T_world_wrist_tau[t], traj.joints[t], t) for t in range(n)
+        ]
+        _grow_active(active, phi_tau, act_m)
 
     values = initial_values(traj, mu_o, fixed_object=True)
     W_prev, J_prev = _means(values, n)
@@ -475,30 +465,40 @@ def solve(
     gn.setMaxIterations(params.gauss_newton_max_iterations)
     gn.setRelativeErrorTol(params.gauss_newton_relative_tolerance)
     gn.setAbsoluteErrorTol(0.0)
-    iterations, converged = 0, not targets
-    for iterations in range(1, (params.max_iterations if targets else 1) + 1):
+    iterations, converged = 0, not active
+    grew = False
+    for iterations in range(1, (params.max_iterations if active else 1) + 1):
         lin = {}
-        for t, r_t in targets.items():
+        for t, mask in active.items():
             phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
+            phi0, grad = np.atleast_1d(phi0)[mask], np.atleast_2d(grad)[mask]
+            r_t = np.clip(phi_tau[t][mask], clear_m, max(act_m, clear_m))
             lin[t] = (W_prev[t], J_prev[t], phi0, grad, r_t)
             if values.exists(key_c(t)):
-                values.update(key_c(t), np.array([phi0]))
-            else:
-                values.insert(key_c(t), np.array([phi0]))
+                values.erase(key_c(t))  # its dimension grows with the active set
+            values.insert(key_c(t), phi0)
         graph = build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True)
+        if active:
+            graph = _with_trust_region(graph, lin, params.trust_stds())
         values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
         W_new, J_new = _means(values, n)
-        if targets:
+        if active:
             dW = local(W_prev, W_new)
             move = max(float(np.abs(dW).max()), float(np.abs(J_new - J_prev).max()))
-            log.debug("relinearization %d: means moved %.3g", iterations, move)
+            log.debug("relinearization %d: means moved %.3g, %d constraints", iterations, move,
+                      sum(int(m.sum()) for m in active.values()))  # fmt: skip
             # damped update of the linearization point (damped loopy belief propagation): the closest-point
-            # distance switches between link pairs, and undamped relinearization oscillates between them
+            # distances change their witness points, and undamped relinearization oscillates between them
             a = params.relinearization_damping
             W_prev, J_prev = retract(W_prev, a * dW), J_prev + a * (J_new - J_prev)
-            if move < params.mean_tolerance:
+            if move < params.mean_tolerance and not grew:
                 converged = True
                 break
+            phi_now = [_constraint_values(constraint_fn, W_prev[t], J_prev[t], t) for t in range(n)]
+            grew = _grow_active(active, phi_now, act_m)
+    if active:  # the final solve without the trust region, at the last linearization point
+        graph = build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True)
+        values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
     if not converged:
         log.warning("constraint relinearization did not converge in %d iterations", iterations)
 
@@ -514,10 +514,42 @@ def solve(
         grasp_type=traj.grasp_type,
         object=traj.object,
         converged=converged,
-        constrained=np.isin(np.arange(n), list(targets)),
+        constrained=np.isin(np.arange(n), list(active)),
         source=traj,
         solve_time_s=time.perf_counter() - start,
     )
+
+
+def _with_trust_region(
+    graph: gtsam.NonlinearFactorGraph, linearizations: dict, stds: np.ndarray
+) -> gtsam.NonlinearFactorGraph:
+    """A copy of ``graph`` with priors tying each constrained step to its linearization point."""
+    out = gtsam.NonlinearFactorGraph(graph)
+    wrist = gtsam.noiseModel.Diagonal.Sigmas(stds[:6])
+    joints = gtsam.noiseModel.Diagonal.Sigmas(stds[6:])
+    for t, (W0, J0, *_rest) in linearizations.items():
+        out.add(gtsam.PriorFactorPose3(key_w(t), gtsam.Pose3(np.asarray(W0, dtype=float)), wrist))
+        out.add(gtsam.PriorFactorVector(key_j(t), np.asarray(J0, dtype=float), joints))
+    return out
+
+
+def _constraint_values(constraint_fn: ConstraintFn, T_world_wrist: np.ndarray, joints: np.ndarray, t: int):
+    phi = np.atleast_1d(np.asarray(constraint_fn(T_world_wrist, np.array(joints)), dtype=float))
+    if phi.ndim != 1 or not np.all(np.isfinite(phi)):
+        raise InputError(f"constraint function returned {phi.tolist()} at step {t}: expected finite values")
+    return phi
+
+
+def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation_m: float) -> bool:
+    """Add the components with ``phi < activation`` to ``active`` (step -> bool mask); True if any was new."""
+    grew = False
+    for t, values in enumerate(phi):
+        below = values < activation_m
+        old = active.get(t, np.zeros(len(values), dtype=bool))
+        if np.any(below & ~old):
+            active[t] = old | below
+            grew = True
+    return grew
 
 
 def _conditional_marginals(

@@ -20,7 +20,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     smoothness_std_config: null
     # linearized constraint factors f_3t, f_4t (section V-B), used only with a scene
     clearance_mm: 10.0                    # r_t = max(phi(tau_r(t)), clearance)
-    constraint_std_mm: 5.0                # R_t = constraint_std^2
+    constraint_std_mm: 2.0                # R_t = constraint_std^2 (5 left the thumb 10 mm in ham_arc's wall)
     activation_distance_mm: 30.0          # constrain only steps with phi(tau_r(t)) below this
     constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
     gradient_step: 1.0e-3                 # central-difference step of grad phi in the 19-D tangent [rad, m];
@@ -30,6 +30,9 @@ Every field has the paper's default (or a documented choice where the paper is s
     mean_tolerance: 1.0e-4                # stop when marginal means move less than this [rad, m]
     relinearization_damping: 0.5          # the next linearization point moves this fraction of the way
                                           # to the new means (damped loopy belief propagation)
+    trust_position_mm: 10.0               # trust region of one relinearization step: while iterating, a
+    trust_rotation_deg: 5.0               # Gaussian prior with these stds ties each constrained step to
+    trust_joint_deg: 5.0                  # its linearization point (dropped for the final solve)
     gauss_newton_max_iterations: 100
     gauss_newton_relative_tolerance: 1.0e-10  # relative change of the squared error
 
@@ -74,13 +77,16 @@ class VariationParams:
     sigma_m_std_config: tuple[float, ...] | None = field(default=None)
     smoothness_std_config: tuple[float, ...] | None = field(default=None)
     clearance_mm: float = 10.0
-    constraint_std_mm: float = 5.0
+    constraint_std_mm: float = 2.0
     activation_distance_mm: float = 30.0
     constraint_delta_variance: float = 1e-10
     gradient_step: float = 1e-3
     max_iterations: int = 20
     mean_tolerance: float = 1e-4
     relinearization_damping: float = 0.5
+    trust_position_mm: float = 10.0
+    trust_rotation_deg: float = 5.0
+    trust_joint_deg: float = 5.0
     gauss_newton_max_iterations: int = 100
     gauss_newton_relative_tolerance: float = 1e-10
 
@@ -128,6 +134,15 @@ class VariationParams:
             get("wrist_position_std_mm") * 1e-3,
             math.radians(get("wrist_rotation_std_deg")),
         )
+
+    def trust_stds(self) -> np.ndarray:
+        """The 19 stds of the relinearization trust region, ``[omega (rad), v (m), joints (rad)]``."""
+        rot, pos, joint = (
+            math.radians(self.trust_rotation_deg),
+            self.trust_position_mm * 1e-3,
+            math.radians(self.trust_joint_deg),
+        )
+        return np.array([rot] * 3 + [pos] * 3 + [joint] * 13)
 
     def smoothness_stds(self) -> np.ndarray:
         """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""

@@ -73,11 +73,12 @@ def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
     return q_world
 
 
-def signed_distance_fn(world: World) -> Callable[[np.ndarray, np.ndarray], float]:
-    """phi(T_world_wrist (4, 4), joints (13,)) -> the hand's signed distance [m] to table and obstacles."""
+def signed_distance_fn(world: World) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """phi(T_world_wrist (4, 4), joints (13,)) -> each hand link's signed distance [m] to the table and the
+    obstacles (:meth:`~planning.world.World.link_signed_distances`): one constraint per link."""
 
-    def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
-        return world.signed_distance(np.concatenate([q_from_pose(T_world_wrist), joints]))
+    def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        return world.link_signed_distances(np.concatenate([q_from_pose(T_world_wrist), joints]))
 
     return signed_distance
 

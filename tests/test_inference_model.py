@@ -246,6 +246,31 @@ def test_a_constraint_moves_the_mean_and_shrinks_the_variance_along_its_gradient
     assert abs(held.T_object_wrist_mean[0, 2, 3] - free.T_object_wrist_mean[0, 2, 3]) < 1e-3
 
 
+def test_a_vector_constraint_pushes_every_active_component_out():
+    """phi = [height above z = 0, distance to a wall x = x0] (one component per 'link'): the trajectory ends
+    3 mm from both; each component gets its own row, and both move towards the 10 mm clearance."""
+    n = 10
+    s = np.linspace(0, 1, n)
+    xi = np.zeros((n, 6))
+    xi[:, 5] = 0.003 + 0.15 * np.clip(1 - s / 0.6, 0, None)
+    traj = make_traj(n=n, T_world_object=np.eye(4), xi_path=xi, seed=6, cov_scale=0.003)
+    free = solve(traj, fingertip_map=_standin_map)
+    x0 = free.T_object_wrist_mean[-1, 0, 3] - 0.003
+
+    def floor_and_wall(T_world_wrist, joints):
+        return np.array([T_world_wrist[2, 3], T_world_wrist[0, 3] - x0])
+
+    held = solve(traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall)
+    assert held.converged
+    clearance = held.params.clearance_mm * 1e-3
+    for axis, plane in ((2, 0.0), (0, x0)):
+        d_free = free.T_object_wrist_mean[:, axis, 3] - plane
+        d_held = held.T_object_wrist_mean[:, axis, 3] - plane
+        near = np.flatnonzero(d_free < 0.005)
+        assert len(near) >= 2
+        assert np.all(d_held[near] - d_free[near] > 0.3 * (clearance - d_free[near])), (axis, d_free, d_held)
+
+
 def test_save_load_roundtrip(tmp_path):
     traj = make_traj(n=4, seed=7)
     model = solve(traj, fingertip_map=_standin_map)
