@@ -19,9 +19,9 @@ Every field has the paper's default (or a documented choice where the paper is s
     sigma_m_std_config: null
     smoothness_std_config: null
     # linearized constraint factors f_3t, f_4t (section V-B), used only with a scene
-    clearance_mm: 10.0                    # r_t = max(phi(tau_r(t)), clearance)
+    clearance_mm: 10.0                    # r_t = phi(tau_r(t)) clipped to [clearance, activation]
     constraint_std_mm: 2.0                # R_t = constraint_std^2 (5 left the thumb 10 mm in ham_arc's wall)
-    activation_distance_mm: 30.0          # constrain only steps with phi(tau_r(t)) below this
+    activation_distance_mm: 30.0          # constrain only components of phi that come below this
     constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
     gradient_step: 1.0e-3                 # central-difference step of grad phi in the 19-D tangent [rad, m];
                                           # pybullet distances are noisy at ~1e-6 m: 1e-5 did not converge
@@ -137,23 +137,15 @@ class VariationParams:
 
     def trust_stds(self) -> np.ndarray:
         """The 19 stds of the relinearization trust region, ``[omega (rad), v (m), joints (rad)]``."""
-        rot, pos, joint = (
-            math.radians(self.trust_rotation_deg),
-            self.trust_position_mm * 1e-3,
-            math.radians(self.trust_joint_deg),
-        )
-        return np.array([rot] * 3 + [pos] * 3 + [joint] * 13)
+        return _config_stds(self.trust_rotation_deg, self.trust_position_mm, self.trust_joint_deg)
 
     def smoothness_stds(self) -> np.ndarray:
         """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""
         if self.smoothness_std_config is not None:
             return np.array(self.smoothness_std_config)
-        rot, pos, joint = (
-            math.radians(self.smooth_rotation_std_deg),
-            self.smooth_position_std_mm * 1e-3,
-            math.radians(self.smooth_joint_std_deg),
+        return _config_stds(
+            self.smooth_rotation_std_deg, self.smooth_position_std_mm, self.smooth_joint_std_deg
         )
-        return np.array([rot] * 3 + [pos] * 3 + [joint] * 13)
 
     # -- I/O ---------------------------------------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -203,6 +195,12 @@ class VariationParams:
         except (yaml.YAMLError, UnicodeDecodeError) as exc:
             raise InputError(f"not valid YAML ({' '.join(str(exc).split())})", path) from None
         return cls.from_dict(data, path)
+
+
+def _config_stds(rotation_deg: float, position_mm: float, joint_deg: float) -> np.ndarray:
+    """19 stds ``[omega (rad) x 3, v (m) x 3, joints (rad) x 13]`` from a rotation, position and joint std."""
+    rot, pos, joint = math.radians(rotation_deg), position_mm * 1e-3, math.radians(joint_deg)
+    return np.array([rot] * 3 + [pos] * 3 + [joint] * 13)
 
 
 def _is_numeric_seq(value) -> bool:

@@ -363,31 +363,21 @@ class World:
 
         Negative in penetration; ``max_distance_m`` when nothing is closer than that.
         """
-        bodies = "all" if include_object else "scene"
-        return float(self.link_signed_distances(q, max_distance_m, bodies).min())
+        return float(self.link_signed_distances(q, max_distance_m, include_object).min())
 
     def link_signed_distances(
-        self, q: np.ndarray, max_distance_m: float = 0.05, bodies: str = "scene"
+        self, q: np.ndarray, max_distance_m: float = 0.05, include_object: bool = False
     ) -> np.ndarray:
-        """Per hand link, the smallest signed distance [m] to some of the static bodies.
-
-        Args:
-            bodies: ``scene`` (table and obstacles), ``object`` (the target object) or ``all``.
+        """Per hand link, the smallest signed distance [m] to the table and obstacles (and the object).
 
         Returns:
             (1 + number of links,): the wrist (pybullet index -1) first, then the links in
             :attr:`link_names` order; negative in penetration, ``max_distance_m`` when nothing is closer.
         """
-        ids = {
-            "scene": (self.table_id, *self.obstacle_ids),
-            "object": (self.object_id,),
-            "all": self._bodies,
-        }.get(bodies)
-        if ids is None:
-            raise InputError(f"bodies: expected scene, object or all, found {bodies!r}")
         self.set_q(q)
+        bodies = self._bodies if include_object else (self.table_id, *self.obstacle_ids)
         out = np.full(1 + len(self.link_names), float(max_distance_m))
-        for b in ids:
+        for b in bodies:
             for p in pb.getClosestPoints(self.hand_id, b, max_distance_m, physicsClientId=self.client):
                 i = p[3] + 1
                 if p[8] < out[i]:
