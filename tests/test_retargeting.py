@@ -73,7 +73,7 @@ def test_collision_term_moves_the_wrist_out_of_a_forbidden_region():
     assert np.all(res.distances[:, 5] == 0.0), "a step ended in collision"
     assert np.all(res.T_object_wrist[:, 0, 3] <= x_max)
     assert np.max(res.fingertip_error_mm) < CONSTRAINED_TOL_MM, res.fingertip_error_mm.max()
-    assert np.all(res.n_collision_checks <= res.nfev)
+    assert np.all(res.n_collision_checks <= res.nfev * (6 + 4 * config.contact_stop_iterations))
     assert res.meta["steps_in_collision"] == 0
 
 
@@ -96,6 +96,48 @@ def test_depth_graded_collision_term_leaves_a_plateau_the_0_1_term_cannot():
     assert res.meta["max_penetration_mm"] == 0.0
     assert np.all(res.T_object_wrist[:, 0, 3] <= x_max)
     assert np.max(res.fingertip_error_mm) < CONSTRAINED_TOL_MM, res.fingertip_error_mm.max()
+
+
+def test_a_finger_stops_at_contact_where_its_target_lies_beyond_a_wall():
+    T, joints, tips = sah_trajectory(n=6, seed=3)
+    # A wall across the index fingertip's path, 1 mm beyond its target at step 3: the targets of steps
+    # 4 and 5 lie `depth_mm` beyond it, the other fingers' targets are unconstrained.
+    index = tips[:, 1]
+    normal = (index[-1] - index[0]) / np.linalg.norm(index[-1] - index[0])
+    wall = float(normal @ index[3]) + 0.001
+    depth_mm = 1e3 * (index @ normal - wall)
+    assert np.all(depth_mm[:4] < 0.0) and np.all(depth_mm[4:] > 5.0)
+
+    def penetration(q):
+        tip = sah.fingertip_positions_in(lie.pose_from_q(q), q[6:])[1]
+        return max(0.0, float(normal @ tip) - wall)
+
+    res = retarget_fingertips(tips, T, np.eye(4), joints0=joints[0], penetration=penetration)
+    assert res.meta["steps_in_collision"] == 0
+    err = res.fingertip_error_mm
+    # The index stops on the wall (within the bisection's 1/16 of its step), the others reach their
+    # targets: the error is the wall's depth, nowhere else.
+    assert np.all(err[4:, 1] >= depth_mm[4:] - 1e-6) and np.all(err[4:, 1] <= depth_mm[4:] + 2.0), err[4:, 1]
+    assert np.max(err[:, [0, 2, 3]]) < RECOVERY_TOL_MM, err
+    assert np.max(err[:4]) < RECOVERY_TOL_MM
+    # Without the stop the IK drives the index onto its target, so the search moves the wrist and every
+    # finger misses.
+    config = RetargetConfig(contact_stop=False)
+    off = retarget_fingertips(tips, T, np.eye(4), joints0=joints[0], penetration=penetration, config=config)
+    assert np.max(off.fingertip_error_mm[-1, [0, 2, 3]]) > 2.0
+
+
+def test_a_step_moves_the_wrist_at_most_the_trust_region():
+    T, joints, tips = sah_trajectory(n=3, seed=4)
+    jumped = tips.copy()
+    jumped[2] += [0.3, 0.0, 0.0]  # the last step's targets leap 30 cm
+    config = RetargetConfig(max_wrist_step_mm=20.0)
+    res = retarget_fingertips(jumped, T, np.eye(4), joints0=joints[0], config=config)
+    step_mm = 1e3 * np.linalg.norm(np.diff(res.T_object_wrist[:, :3, 3], axis=0), axis=-1)
+    assert step_mm[1] <= 20.0 + 1e-9 and step_mm[1] > 15.0, step_mm  # it goes as far as it may
+    R_1, R_2 = res.T_object_wrist[1, :3, :3], res.T_object_wrist[2, :3, :3]
+    rot_deg = np.rad2deg(np.linalg.norm(lie.so3_log(R_1.T @ R_2)))
+    assert rot_deg <= config.max_wrist_step_deg + 1e-9
 
 
 def test_sigma_r_is_symmetric_psd_and_maps_back_to_the_fingertip_covariance():
@@ -149,6 +191,9 @@ def test_palm_alignment_keeps_the_axes():
         ({"max_nfev": 0}, "max_nfev"),
         ({"penetration_weight_per_mm": -1.0}, "penetration_weight_per_mm"),
         ({"thumb_base_seed_deg": float("nan")}, "thumb_base_seed_deg"),
+        ({"contact_stop_iterations": 0}, "contact_stop_iterations"),
+        ({"max_wrist_step_mm": 0.0}, "max_wrist_step_mm"),
+        ({"max_wrist_step_deg": float("inf")}, "max_wrist_step_mm and _deg"),
     ],
 )
 def test_invalid_config(kwargs, match):
