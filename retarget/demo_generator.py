@@ -331,8 +331,10 @@ def _strategies() -> dict[str, Strategy]:
         "small_cup",
         "precision",
         "by its body from above, away from the handle: thumb on the +y side, fingers around the -y side",
-        _frame(down, (1.0, 0.0, 0.0)),
-        np.array([0.0, 0.06, 0.17]),
+        # The thumb side towards +y (tilted 17 deg away from the handle). With it towards +x, as before,
+        # the fit put the thumb on the handle side with a normal 31-81 deg from the fingers': no opposition.
+        _frame(down, (-0.3, 1.0, 0.0)),
+        np.array([0.0, 0.0, 0.17]),
         {
             "thumb": _cyl(0.042, 95, 0.055),
             "index": _cyl(0.042, 325, 0.055),

@@ -70,6 +70,31 @@ def test_shipped_final_grasp_contacts(shipped):
     assert np.max(np.abs(gaps_mm)) <= CONTACT_TOL_MM, gaps_mm
 
 
+#: Shipped demonstrations whose final thumb does not oppose the fingers (a known generator defect: the
+#: fit misses the thumb target by 60-90 mm, since with the thumb up the human thumb cannot reach round
+#: the other side, and the contact check only asks for contact). Retargeted, they give no grasp.
+THUMB_NOT_OPPOSED = {"chips", "salt"}
+
+
+_KNOWN_DEFECT = pytest.mark.xfail(strict=True, reason="known defect: the thumb on the fingers' side")
+
+
+@pytest.mark.parametrize(
+    "name",
+    [pytest.param(n, marks=_KNOWN_DEFECT) if n in THUMB_NOT_OPPOSED else n for n in gen.DEMONSTRATED_OBJECTS],
+)
+def test_shipped_thumb_opposes_the_fingers(name):
+    """The thumb's contact normal points against the mean of the other fingers' (over 90 deg apart)."""
+    d = Demonstration.load(name)
+    T, J = d.T_object_wrist_true[-1], d.joints_true[-1]
+    _, centres = gen.sample_points(J)
+    _, normals = gen.ObjectDistance(name).closest(centres @ T[:3, :3].T + T[:3, 3])
+    k = [gen.FINGERS.index(f) for f in d.contact_fingers if f != "thumb"]
+    fingers = normals[k].mean(axis=0)
+    cos = float(normals[0] @ fingers) / np.linalg.norm(fingers)
+    assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > 90.0
+
+
 def test_shipped_trajectory_never_penetrates(shipped):
     d = shipped
     dist = gen.ObjectDistance(d.object)
