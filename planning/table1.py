@@ -179,6 +179,9 @@ def _digest(parts: Iterable[str]) -> str:
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 RETARGET_SOURCES = ("retarget", "planning/strategy.py")
+#: Sources inside those folders that no cached step runs: the demonstration generator only writes the
+#: demonstration files, whose contents are part of the retargeting key.
+UNCACHED_SOURCES = ("retarget/demo_generator.py",)
 MODEL_SOURCES = (
     "inference", "planning/world.py", "planning/scene.py", "planning/_pybullet.py", "planning/strategy.py"
 )
@@ -190,6 +193,7 @@ def _source_digest(entries: Sequence[str]) -> str:
     for e in entries:
         p = _PACKAGE_ROOT / e
         files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
+    files = [f for f in files if str(f.relative_to(_PACKAGE_ROOT)) not in UNCACHED_SOURCES]
     return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_sha256_file(f)}" for f in files if f.is_file())
 
 

@@ -288,3 +288,17 @@ def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
         assert rec.seed == ref.seed and rec.params_json == ref.params_json
         if not any("time limit" in r.message for r in (rec, ref)):
             assert rec.deterministic_fields() == ref.deterministic_fields()
+
+
+def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
+    from planning import table1
+
+    (tmp_path / "retarget").mkdir()
+    (tmp_path / "retarget" / "retargeting.py").write_text("x = 1\n")
+    (tmp_path / "retarget" / "demo_generator.py").write_text("y = 1\n")
+    monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
+    before = table1._source_digest(("retarget",))
+    (tmp_path / "retarget" / "demo_generator.py").write_text("y = 2\n")  # writes files that are hashed
+    assert table1._source_digest(("retarget",)) == before
+    (tmp_path / "retarget" / "retargeting.py").write_text("x = 2\n")
+    assert table1._source_digest(("retarget",)) != before
