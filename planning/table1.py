@@ -193,7 +193,7 @@ def _source_digest(entries: Sequence[str]) -> str:
     for e in entries:
         p = _PACKAGE_ROOT / e
         files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
-    files = [f for f in files if str(f.relative_to(_PACKAGE_ROOT)) not in UNCACHED_SOURCES]
+    files = [f for f in files if f.relative_to(_PACKAGE_ROOT).as_posix() not in UNCACHED_SOURCES]
     return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_sha256_file(f)}" for f in files if f.is_file())
 
 

@@ -398,19 +398,23 @@ class _Objective:
         self.config = config
         self.best = np.inf
         self.n_checks = 0
+        self.checked = is_free is not None or penetration is not None
         self.max_step = (1e-3 * config.max_wrist_step_mm, np.deg2rad(config.max_wrist_step_deg))
 
-    def configuration(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """x = [wrist body-frame step (6), thumb opposition step (1)] -> (T_object_wrist, IK joints)."""
-        T = self.T_start @ se3_exp(x[:6])
+    # x = [wrist body-frame step (6), thumb opposition step (1)]
+    def wrist(self, x: np.ndarray) -> np.ndarray:
+        """T_object_wrist of ``x``."""
+        return self.T_start @ se3_exp(x[:6])
+
+    def ik_joints(self, T: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """The per-finger IK's joints at wrist ``T``, with the thumb's opposition of ``x``."""
         p_wrist = (self.targets - T[:3, 3]) @ T[:3, :3]
         seed = self.joints_seed.copy()
         seed[_THUMB_BASE] = np.clip(seed[_THUMB_BASE] + x[6], *sah.JOINT_LIMITS[_THUMB_BASE])
-        return T, ik.hand_ik(p_wrist, seed)
+        return ik.hand_ik(p_wrist, seed)
 
-    def in_trust_region(self, x: np.ndarray) -> bool:
-        """The wrist of ``x`` is within ``max_wrist_step_mm`` and ``_deg`` of ``T_start``."""
-        T = self.T_start @ se3_exp(x[:6])
+    def in_trust_region(self, T: np.ndarray, x: np.ndarray) -> bool:
+        """The wrist ``T`` of ``x`` is within ``max_wrist_step_mm`` and ``_deg`` of ``T_start``."""
         return bool(
             np.linalg.norm(T[:3, 3] - self.T_start[:3, 3]) <= self.max_step[0]
             and np.linalg.norm(x[:3]) <= self.max_step[1]
@@ -448,38 +452,41 @@ class _Objective:
             out[idx] = start + lo * (goal - start)
         return out
 
-    def evaluate(self, x: np.ndarray, lazy: bool) -> tuple[np.ndarray, np.ndarray, StepCosts, bool]:
-        """(T_object_wrist, joints, costs, exact) of ``x``. With ``lazy``, a trial whose lower bound is
-        above the best value so far is rejected without a collision query: its IK configuration and
-        collision-free costs come back with ``exact`` False."""
-        T, joints = self.configuration(x)
+    def evaluate(self, T: np.ndarray, joints: np.ndarray, lazy: bool) -> tuple[np.ndarray, StepCosts]:
+        """(joints, costs) at wrist ``T`` with the IK's ``joints``: the joints stopped at contact if they
+        were. With ``lazy``, a trial whose lower bound is above the best value so far is rejected without a
+        collision query (its collision-free costs come back)."""
         cfg = self.config
         base = step_costs(T, joints, self.targets, self.T_des, self.joints_prev, True, cfg)
-        checked = self.is_free is not None or self.penetration is not None
-        stop = checked and cfg.contact_stop and self.joints_prev is not None
+        stop = self.checked and cfg.contact_stop and self.joints_prev is not None
         # Stopping the fingers at contact can lower d7 (towards tau_r(t - 1)), never below 0.
         bound = base.total - (cfg.weights[6] * base.d[6] if stop else 0.0)
-        if not checked or (lazy and bound > self.best):
-            return T, joints, base, False
+        if not self.checked or (lazy and bound > self.best):
+            return joints, base
         depth_mm = self._depth_mm(T, joints)
         if depth_mm <= 0.0:
-            return T, joints, base, True
+            return joints, base
         stopped = self._stop_at_contact(T, joints) if stop else None
         if stopped is not None:
-            costs = step_costs(T, stopped, self.targets, self.T_des, self.joints_prev, True, cfg)
-            return T, stopped, costs, True
+            return stopped, step_costs(T, stopped, self.targets, self.T_des, self.joints_prev, True, cfg)
         d = base.d.copy()
         d[5] = 1.0
-        depth_term = cfg.penetration_weight_per_mm * depth_mm if self.penetration is not None else 0.0
-        total = base.total + cfg.weights[5] + depth_term
-        pen = depth_mm if self.penetration is not None else 0.0
+        pen = depth_mm if self.penetration is not None else 0.0  # the 0/1 check has no depth
+        total = base.total + cfg.weights[5] + cfg.penetration_weight_per_mm * pen
         costs = StepCosts(d=d, total=total, fingertip_error_m=base.fingertip_error_m, penetration_mm=pen)
-        return T, joints, costs, True
+        return joints, costs
+
+    def solution(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, StepCosts]:
+        """(T_object_wrist, joints, exact costs) of the optimum ``x``."""
+        T = self.wrist(x)
+        joints, costs = self.evaluate(T, self.ik_joints(T, x), lazy=False)
+        return T, joints, costs
 
     def __call__(self, x: np.ndarray) -> float:
-        if not self.in_trust_region(x):
+        T = self.wrist(x)
+        if not self.in_trust_region(T, x):
             return np.inf
-        _, _, c, _ = self.evaluate(x, lazy=True)
+        _, c = self.evaluate(T, self.ik_joints(T, x), lazy=True)
         self.best = min(self.best, c.total)
         return c.total
 
@@ -555,7 +562,7 @@ def retarget_fingertips(
     for t in tqdm(range(n), desc="retarget", unit="step", disable=not progress, leave=False):
         obj = _Objective(T_start, P[t], T_des[t], joints_seed, joints_prev, is_free, config, penetration)
         res = minimize_rosenbrock(obj, np.zeros(7), step0=step0, xtol=config.xtol, max_nfev=config.max_nfev)
-        T_opt, joints_opt, costs, _ = obj.evaluate(res.x, lazy=False)
+        T_opt, joints_opt, costs = obj.solution(res.x)
         nfev = res.nfev
         for factor in config.escape_factors if checked else ():
             if costs.d[5] == 0.0:
@@ -566,7 +573,7 @@ def retarget_fingertips(
             nfev += again.nfev
             if again.fun <= res.fun:
                 res = again
-                T_opt, joints_opt, costs, _ = obj.evaluate(res.x, lazy=False)
+                T_opt, joints_opt, costs = obj.solution(res.x)
         out_T[t], out_joints[t], out_err[t] = T_opt, joints_opt, costs.fingertip_error_m
         out_d[t], out_cost[t] = costs.d, costs.total
         out_nfev[t], out_checks[t], out_ok[t] = nfev, obj.n_checks, res.success
