@@ -344,38 +344,41 @@ def _strategies() -> dict[str, Strategy]:
         },
         np.array([0.0, 0.0, 1.0]),
     )
-    # Chips can (7.5 cm diameter, 23 cm high): wrapped from the side, palm on the can, thumb up.
+    # Chips can (7.5 cm diameter, 23 cm high): a cylindrical power grasp from the side, thumb up. The palm
+    # lies on the -x side; the fingers wrap round the -y side towards +x, the thumb round the +y side the
+    # other way, above the index, so that its contact opposes theirs (138 deg from their mean normal).
     side = np.array([-1.0, 0.0, 0.0])
     S["chips"] = Strategy(
         "chips",
         "power",
-        "wrapped from the side: palm on the can, fingers around it, thumb wrapped the other way",
+        "wrapped from the side, thumb up: palm on the can, fingers round one side, thumb round the other",
         _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.054, 0.055, 0.11]),
+        np.array([-0.054, 0.07, 0.11]),
         {
-            "thumb": _cyl(0.039, 110, 0.16),
+            "thumb": _cyl(0.039, 70, 0.17),
             "index": _cyl(0.039, 315, 0.14),
-            "middle": _cyl(0.039, 25, 0.12),
+            "middle": _cyl(0.039, 330, 0.12),
             "ring": _cyl(0.039, 318, 0.10),
             "little": _cyl(0.039, 315, 0.08),
         },
         side,
         palm_gap_m=0.002,
     )
-    # Salt box (9 x 6 x 14 cm): power grasp from the side, palm on the narrow -x face, fingers over the
-    # -y face, thumb on the +y face.
+    # Salt box (9 x 6 x 14 cm): power grasp from the side, thumb up, palm on the narrow -x face, the
+    # fingers round its edge onto the -y face, the thumb round the other edge onto the +y face.
     S["salt"] = Strategy(
         "salt",
         "power",
-        "from the side: palm on the narrow face, fingers wrapped onto one wide face, thumb on the other",
+        "from the side, thumb up: palm on the narrow face, fingers wrapped onto one wide face, thumb on the "
+        "other",
         _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.065, 0.05, 0.07]),
+        np.array([-0.063, 0.062, 0.06]),
         {
-            "thumb": (-0.035, 0.03, 0.1),
-            "index": (-0.032, -0.032, 0.1),
-            "middle": (0.0, -0.032, 0.08),
-            "ring": (-0.012, -0.032, 0.06),
-            "little": (-0.018, -0.032, 0.042),
+            "thumb": (-0.008, 0.032, 0.11),
+            "index": (0.01, -0.032, 0.09),
+            "middle": (0.02, -0.032, 0.075),
+            "ring": (0.01, -0.032, 0.055),
+            "little": (0.0, -0.032, 0.04),
         },
         side,
         palm_gap_m=0.002,
@@ -420,8 +423,20 @@ def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.
     return sd, gaps
 
 
+#: Restarts of the grasp fit. It starts from the natural posture (no abduction, 0.6 rad flexion); when a
+#: fingertip ends farther than ``_FIT_RESTART_MISS_M`` from its goal, it runs again from each thumb posture
+#: (cmc_abd, cmc_flex, mcp, ip) [rad] of ``_THUMB_STARTS`` (abducted at its limit, nearly straight) and the
+#: lowest cost wins. From the natural posture alone, a thumb that must reach round an object (a power
+#: grasp from the side, thumb up) stays in a local minimum 60-90 mm from its target, on the fingers' side.
+_FIT_RESTART_MISS_M = 0.02
+_THUMB_STARTS = ((0.7, 0.0, 0.0, 0.0), (0.7, 0.3, 0.3, 0.3))
+
+
 def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares wrist pose and joints with the fingertips at a stand-off from the targets."""
+    """Least-squares wrist pose and joints with the fingertips at a stand-off from the targets.
+
+    The fit runs from the natural posture and from each of :data:`_THUMB_STARTS`; the lowest cost wins.
+    """
     hand = _hand()
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
     names = list(hand.JOINT_NAMES)
@@ -453,14 +468,29 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
             r.append(np.atleast_1d((palm.min() - strategy.palm_gap_m) / 0.001))
         return np.concatenate(r)
 
-    x0 = np.concatenate([np.zeros(3), strategy.p_object_wrist, pref])
     lo = np.concatenate([np.full(6, -np.inf), limits[:, 0]])
     hi = np.concatenate([np.full(6, np.inf), limits[:, 1]])
-    sol = least_squares(
-        residuals, x0, bounds=(lo, hi), x_scale=np.r_[[0.2] * 3, [0.02] * 3, [0.3] * 20], max_nfev=400
-    )
-    log.debug("%s: fit cost %.3g after %d evaluations", strategy.object, sol.cost, sol.nfev)
-    return unpack(sol.x)
+
+    def solve(thumb):
+        J0 = pref.copy()
+        if thumb is not None:
+            J0[list(hand.FINGER_JOINTS["thumb"])] = thumb
+        x0 = np.concatenate([np.zeros(3), strategy.p_object_wrist, np.clip(J0, limits[:, 0], limits[:, 1])])
+        sol = least_squares(
+            residuals, x0, bounds=(lo, hi), x_scale=np.r_[[0.2] * 3, [0.02] * 3, [0.3] * 20], max_nfev=400
+        )
+        T, J = unpack(sol.x)
+        miss = np.linalg.norm(_to_object(T, sample_points(J)[1][kk]) - goal, axis=-1).max()
+        log.debug("%s: fit from thumb %s: cost %.3g, miss %.4f m", strategy.object, thumb, sol.cost, miss)
+        return sol, miss
+
+    best, miss = solve(None)
+    if miss > _FIT_RESTART_MISS_M:
+        for thumb in _THUMB_STARTS:
+            sol, _ = solve(thumb)
+            if sol.cost < best.cost:
+                best = sol
+    return unpack(best.x)
 
 
 def _refit_finger(
