@@ -346,7 +346,7 @@ def _strategies() -> dict[str, Strategy]:
     )
     # Chips can (7.5 cm diameter, 23 cm high): a cylindrical power grasp from the side, thumb up. The palm
     # lies on the -x side; the fingers wrap round the -y side towards +x, the thumb round the +y side the
-    # other way, above the index, so that its contact opposes theirs (138 deg from their mean normal).
+    # other way, above the index, so that its contact opposes theirs (136 deg from their mean normal).
     side = np.array([-1.0, 0.0, 0.0])
     S["chips"] = Strategy(
         "chips",
@@ -425,9 +425,10 @@ def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.
 
 #: Restarts of the grasp fit. It starts from the natural posture (no abduction, 0.6 rad flexion); when a
 #: fingertip ends farther than ``_FIT_RESTART_MISS_M`` from its goal, it runs again from each thumb posture
-#: (cmc_abd, cmc_flex, mcp, ip) [rad] of ``_THUMB_STARTS`` (abducted at its limit, nearly straight) and the
-#: lowest cost wins. From the natural posture alone, a thumb that must reach round an object (a power
-#: grasp from the side, thumb up) stays in a local minimum 60-90 mm from its target, on the fingers' side.
+#: (cmc_abd, cmc_flex, mcp, ip) [rad] of ``_THUMB_STARTS`` (abducted to its limit; straight, or slightly
+#: bent) and the lowest cost wins. From the natural posture alone, a thumb that must reach round an object
+#: (a power grasp from the side, thumb up) stays in a local minimum 60-90 mm from its target, on the
+#: fingers' side.
 _FIT_RESTART_MISS_M = 0.02
 _THUMB_STARTS = ((0.7, 0.0, 0.0, 0.0), (0.7, 0.3, 0.3, 0.3))
 
@@ -435,7 +436,8 @@ _THUMB_STARTS = ((0.7, 0.0, 0.0, 0.0), (0.7, 0.3, 0.3, 0.3))
 def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares wrist pose and joints with the fingertips at a stand-off from the targets.
 
-    The fit runs from the natural posture and from each of :data:`_THUMB_STARTS`; the lowest cost wins.
+    The fit runs from the natural posture; if a fingertip then misses its goal by more than
+    ``_FIT_RESTART_MISS_M``, also from each of ``_THUMB_STARTS``, and the lowest cost wins.
     """
     hand = _hand()
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
@@ -453,12 +455,14 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
     def unpack(x):
         return lie.make_pose(R0 @ lie.so3_exp(x[:3]), x[3:6]), x[6:]
 
+    tip_sigma_m = 0.002
+
     def residuals(x):
         T, J = unpack(x)
         pts, centres = sample_points(J)
         sd = dist.signed(_to_object(T, pts)) - samples.radius
         r = [
-            ((_to_object(T, centres[kk]) - goal) / 0.002).ravel(),
+            ((_to_object(T, centres[kk]) - goal) / tip_sigma_m).ravel(),
             np.maximum(0.0, 0.002 - sd) / 0.0005,
             x[:3] / strategy.orientation_sigma_rad,
             (J - pref) / 1.5,
@@ -479,8 +483,8 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
         sol = least_squares(
             residuals, x0, bounds=(lo, hi), x_scale=np.r_[[0.2] * 3, [0.02] * 3, [0.3] * 20], max_nfev=400
         )
-        T, J = unpack(sol.x)
-        miss = np.linalg.norm(_to_object(T, sample_points(J)[1][kk]) - goal, axis=-1).max()
+        # the worst fingertip miss from the residuals' first block (no second FK)
+        miss = tip_sigma_m * np.linalg.norm(sol.fun[: 3 * len(kk)].reshape(-1, 3), axis=-1).max()
         log.debug("%s: fit from thumb %s: cost %.3g, miss %.4f m", strategy.object, thumb, sol.cost, miss)
         return sol, miss
 
