@@ -123,12 +123,15 @@ class RetargetConfig:
             outweighs 1 m of fingertip error, so the search leaves the collision first.
         contact_stop: when the per-finger IK's fingers make a trial configuration collide (d6 checked),
             the fingers stop at contact instead: finger by finger, the joints move from tau_r(t - 1)'s
-            towards the IK solution only as far as the hand stays free (bisection,
-            ``contact_stop_iterations`` halvings; our addition).
+            (at the first step from the seed's) towards the IK solution only as far as the hand stays free
+            (bisection, ``contact_stop_iterations`` halvings; our addition).
             Without it the IK pulls a finger into the object whenever the human's finger passes closer
             than the thicker SAH finger can, and the only free trials move the wrist until the targets are
             out of reach: the jam's last 7 steps ended with a fingertip RMSE of 88-117 mm, the thumb
             module 18 mm in the jar on the human-aligned wrist. A human finger stops on the surface too.
+            Without the first step's stop the chips demonstration began with the SAH thumb in its own
+            palm (the human thumb curled towards the palm): tau_r's first two steps self-colliding, no
+            collision-free root for the planner, and a fingertip MSE of 3525 mm^2 (856 with it).
         contact_stop_iterations: bisection steps of ``contact_stop`` (4: 1/16 of a finger's motion in the
             step; up to ``1 + 4 * (1 + iterations)`` collision queries for a trial).
         max_wrist_step_mm, max_wrist_step_deg: the trust region of a step's search: trials whose wrist
@@ -393,6 +396,8 @@ class _Objective:
         self.T_des = T_des
         self.joints_seed = joints_seed
         self.joints_prev = joints_prev
+        # The fingers stop at contact moving from tau_r(t - 1), or at the first step from the seed.
+        self.joints_from = joints_seed if joints_prev is None else joints_prev
         self.is_free = is_free
         self.penetration = penetration
         self.config = config
@@ -429,10 +434,10 @@ class _Objective:
         return 0.0 if self.is_free(q) else 1.0
 
     def _stop_at_contact(self, T: np.ndarray, joints: np.ndarray) -> np.ndarray | None:
-        """Each finger's joints moved from ``joints_prev`` towards ``joints`` as far as the hand stays free
-        (finger by finger, thumb first), or None when ``joints_prev`` itself collides at this wrist (see
-        :attr:`RetargetConfig.contact_stop`)."""
-        out = np.array(self.joints_prev, dtype=float)
+        """Each finger's joints moved from ``joints_from`` (tau_r(t - 1), the seed at the first step)
+        towards ``joints`` as far as the hand stays free (finger by finger, thumb first), or None when
+        ``joints_from`` itself collides at this wrist (see :attr:`RetargetConfig.contact_stop`)."""
+        out = np.array(self.joints_from, dtype=float)
         if self._depth_mm(T, out) > 0.0:
             return None
         for finger in sah.FINGERS:
@@ -458,7 +463,7 @@ class _Objective:
         collision query (its collision-free costs come back)."""
         cfg = self.config
         base = step_costs(T, joints, self.targets, self.T_des, self.joints_prev, True, cfg)
-        stop = self.checked and cfg.contact_stop and self.joints_prev is not None
+        stop = self.checked and cfg.contact_stop
         # Stopping the fingers at contact can lower d7 (towards tau_r(t - 1)), never below 0.
         bound = base.total - (cfg.weights[6] * base.d[6] if stop else 0.0)
         if not self.checked or (lazy and bound > self.best):

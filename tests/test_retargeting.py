@@ -127,6 +127,30 @@ def test_a_finger_stops_at_contact_where_its_target_lies_beyond_a_wall():
     assert np.max(off.fingertip_error_mm[-1, [0, 2, 3]]) > 2.0
 
 
+def test_the_first_step_stops_its_fingers_at_contact_moving_from_the_seed():
+    """One step whose index target lies 5 mm beyond a wall that the seed's (open) index is clear of: the
+    fingers stop at contact moving from the seed (there is no tau_r(t - 1) yet), so the step ends free
+    with the index on the wall and the other fingers on their targets."""
+    T, joints, tips = sah_trajectory(n=6, seed=3)
+    T, tips = T[-1:], tips[-1:]
+    seed_joints = sah.rest_joints()
+    p_seed = sah.fingertip_positions_in(T[0], seed_joints)[1]
+    target = tips[0, 1]
+    normal = (target - p_seed) / np.linalg.norm(target - p_seed)
+    wall = float(normal @ target) - 0.005
+    assert normal @ p_seed < wall - 0.002  # the seed's index is clear of the wall
+
+    def penetration(q):
+        tip = sah.fingertip_positions_in(lie.pose_from_q(q), q[6:])[1]
+        return max(0.0, float(normal @ tip) - wall)
+
+    res = retarget_fingertips(tips, T, np.eye(4), joints0=seed_joints, penetration=penetration)
+    assert res.meta["steps_in_collision"] == 0
+    err = res.fingertip_error_mm[0]
+    assert 5.0 - 1e-6 <= err[1] <= 5.0 + 2.0, err
+    assert np.max(err[[0, 2, 3]]) < CONSTRAINED_TOL_MM, err
+
+
 def test_a_step_moves_the_wrist_at_most_the_trust_region():
     T, joints, tips = sah_trajectory(n=3, seed=4)
     jumped = tips.copy()
