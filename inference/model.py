@@ -10,7 +10,9 @@ vector (e.g. the signed distance of each hand link to the table and obstacles), 
 ``mu_o tau_r(t)``; its components below ``activation_distance`` are active. A step with active components gets
 a vector variable ``C_t``, a factor ``C_t = phi0 + G dx`` (the active rows of phi linearized by central
 differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
-``r_t = phi(mu_o tau_r(t))`` clipped to ``[clearance, activation_distance]`` and ``R_t = constraint_std^2 I``.
+``r_t = phi(mu_o tau_r(t))`` clipped to ``[clearance, activation_distance]`` and ``R_t = constraint_std^2 I``;
+the clearance may differ per component (``constraint_clearance_mm``: the planner holds the hand's links 10 mm
+from the table and obstacles, 3 mm from the grasped object).
 Linearize, solve (with a trust region: priors ``N(x0, trust_stds)`` tying each constrained step to its
 linearization point ``x0``, so that one solve stays where the linearization holds), move the linearization
 point half way (``relinearization_damping``) to the new means and repeat until they move less than
@@ -59,7 +61,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -422,6 +424,7 @@ def solve(
     cov_object: np.ndarray | None = None,
     constraint_fn: ConstraintFn | None = None,
     fingertip_map: FingertipMap | None = None,
+    constraint_clearance_mm: float | Sequence[float] | None = None,
 ) -> VariationModel:
     """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
 
@@ -432,6 +435,8 @@ def solve(
         constraint_fn: ``phi(T_world_wrist (4,4), joints (13,)) -> float or (m,)`` (e.g. signed distances
             [m]); None for no constraint factors.
         fingertip_map: the Sigma_m mapping of :func:`inference.factors.modeling_covariance`.
+        constraint_clearance_mm: the clearance of each component of phi [mm] (a number for all, or one per
+            component); default ``params.clearance_mm`` for all.
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -449,7 +454,11 @@ def solve(
     # constrained components per step: phi_i below the activation distance at tau_r or, as the means move,
     # at any linearization point (the active set only grows); targets r_i = phi_i(tau_r) clipped to
     # [clearance, activation]: keep the demonstrated distance, but at least the clearance
-    act_m, clear_m = params.activation_distance_mm * 1e-3, params.clearance_mm * 1e-3
+    act_m = params.activation_distance_mm * 1e-3
+    clear_mm = params.clearance_mm if constraint_clearance_mm is None else constraint_clearance_mm
+    clear_m = 1e-3 * np.asarray(clear_mm, dtype=float)
+    if clear_m.ndim > 1 or not np.all(np.isfinite(clear_m)) or np.any(clear_m < 0):
+        raise InputError(f"constraint_clearance_mm: expected finite numbers >= 0, found {clear_mm!r}")
     active: dict[int, np.ndarray] = {}
     phi_tau: list[np.ndarray] = []
     if constraint_fn is not None:
@@ -457,6 +466,11 @@ def solve(
         phi_tau = [
             _constraint_values(constraint_fn, T_world_wrist_tau[t], traj.joints[t], t) for t in range(n)
         ]
+        if clear_m.ndim == 1 and clear_m.shape != phi_tau[0].shape:
+            raise InputError(
+                f"constraint_clearance_mm: {clear_m.size} clearances for {phi_tau[0].size} "
+                "constraint components"
+            )
         _grow_active(active, phi_tau, act_m)
 
     values = initial_values(traj, mu_o, fixed_object=True)
@@ -472,7 +486,8 @@ def solve(
         for t, mask in active.items():
             phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
             phi0, grad = np.atleast_1d(phi0)[mask], np.atleast_2d(grad)[mask]
-            r_t = np.clip(phi_tau[t][mask], clear_m, max(act_m, clear_m))
+            clear_t = np.broadcast_to(clear_m, mask.shape)[mask]
+            r_t = np.clip(phi_tau[t][mask], clear_t, np.maximum(act_m, clear_t))
             lin[t] = (W_prev[t], J_prev[t], phi0, grad, r_t)
             if values.exists(key_c(t)):
                 values.erase(key_c(t))  # its dimension grows with the active set

@@ -20,6 +20,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     smoothness_std_config: null
     # linearized constraint factors f_3t, f_4t (section V-B), used only with a scene
     clearance_mm: 10.0                    # r_t = phi(tau_r(t)) clipped to [clearance, activation]
+    object_clearance_mm: 3.0              # the same for the components that measure the grasped object
     constraint_std_mm: 2.0                # R_t = constraint_std^2 (5 left the thumb 10 mm in ham_arc's wall)
     activation_distance_mm: 30.0          # constrain only components of phi that come below this
     constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
@@ -77,6 +78,7 @@ class VariationParams:
     sigma_m_std_config: tuple[float, ...] | None = field(default=None)
     smoothness_std_config: tuple[float, ...] | None = field(default=None)
     clearance_mm: float = 10.0
+    object_clearance_mm: float = 3.0
     constraint_std_mm: float = 2.0
     activation_distance_mm: float = 30.0
     constraint_delta_variance: float = 1e-10
@@ -116,7 +118,7 @@ class VariationParams:
             value = float(value)
             if f.name == "relinearization_damping" and not 0.0 < value <= 1.0:
                 raise InputError(f"{f.name}: expected a fraction in (0, 1], found {value!r}")
-            allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm")
+            allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm", "object_clearance_mm")
             if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
                 raise InputError(
                     f"{f.name}: expected a finite number {'>=' if allow_zero else '>'} 0, found {value!r}"

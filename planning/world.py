@@ -366,16 +366,22 @@ class World:
         return float(self.link_signed_distances(q, max_distance_m, include_object).min())
 
     def link_signed_distances(
-        self, q: np.ndarray, max_distance_m: float = 0.05, include_object: bool = False
+        self,
+        q: np.ndarray,
+        max_distance_m: float = 0.05,
+        include_object: bool = False,
+        bodies: tuple[int, ...] | None = None,
     ) -> np.ndarray:
-        """Per hand link, the smallest signed distance [m] to the table and obstacles (and the object).
+        """Per hand link, the smallest signed distance [m] to the table and obstacles (and the object), or
+        to the given ``bodies`` (pybullet ids) only.
 
         Returns:
             (1 + number of links,): the wrist (pybullet index -1) first, then the links in
             :attr:`link_names` order; negative in penetration, ``max_distance_m`` when nothing is closer.
         """
         self.set_q(q)
-        bodies = self._bodies if include_object else (self.table_id, *self.obstacle_ids)
+        if bodies is None:
+            bodies = self._bodies if include_object else (self.table_id, *self.obstacle_ids)
         out = np.full(1 + len(self.link_names), float(max_distance_m))
         for b in bodies:
             for p in pb.getClosestPoints(self.hand_id, b, max_distance_m, physicsClientId=self.client):

@@ -271,6 +271,41 @@ def test_a_vector_constraint_pushes_every_active_component_out():
         assert np.all(d_held[near] - d_free[near] > 0.3 * (clearance - d_free[near])), (axis, d_free, d_held)
 
 
+def test_per_component_clearances_hold_each_component_at_its_own_distance():
+    """The floor and wall of the test above with clearances (10, 0) mm: the floor component moves out
+    towards 10 mm as before, the wall component is held at its demonstrated 3 mm (target max(3, 0) mm);
+    a clearance vector of the wrong length is an InputError."""
+    n = 10
+    s = np.linspace(0, 1, n)
+    xi = np.zeros((n, 6))
+    xi[:, 5] = 0.003 + 0.15 * np.clip(1 - s / 0.6, 0, None)
+    traj = make_traj(n=n, T_world_object=np.eye(4), xi_path=xi, seed=6, cov_scale=0.003)
+    free = solve(traj, fingertip_map=_standin_map)
+    x0 = free.T_object_wrist_mean[-1, 0, 3] - 0.003
+    x_tau = traj.T_world_object_mean @ traj.T_object_wrist
+
+    def floor_and_wall(T_world_wrist, joints):
+        return np.array([T_world_wrist[2, 3], T_world_wrist[0, 3] - x0])
+
+    held = solve(
+        traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(10, 0)
+    )
+    assert held.converged
+    floor_free, floor_held = free.T_object_wrist_mean[:, 2, 3], held.T_object_wrist_mean[:, 2, 3]
+    near = np.flatnonzero(floor_free < 0.005)
+    assert np.all(floor_held[near] - floor_free[near] > 0.3 * (0.010 - floor_free[near]))
+    wall_tau = x_tau[:, 0, 3] - x0
+    wall_held = held.T_object_wrist_mean[:, 0, 3] - x0
+    near_wall = np.flatnonzero(wall_tau < 0.03)
+    assert len(near_wall) >= 2
+    # held at the demonstrated distance within a few constraint stds (2 mm), not pushed to 10 mm
+    assert np.all(np.abs(wall_held[near_wall] - wall_tau[near_wall]) < 0.004), (wall_tau, wall_held)
+    with pytest.raises(InputError, match="3 clearances for 2 constraint components"):
+        solve(
+            traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(1, 2, 3)
+        )
+
+
 def test_save_load_roundtrip(tmp_path):
     traj = make_traj(n=4, seed=7)
     model = solve(traj, fingertip_map=_standin_map)

@@ -157,6 +157,18 @@ def test_signed_distance_sign_and_value(ham_arc):
     assert w.signed_distance(through, include_object=True) < 0
 
 
+def test_link_distances_to_given_bodies_split_the_scene(ham_arc):
+    """Per link, the distance to the whole scene is the smaller of the distances to the object alone and to
+    the table and obstacles (the default)."""
+    w = ham_arc
+    through = q_down([0.0, 0.0, 0.12])
+    env = w.link_signed_distances(through)
+    obj = w.link_signed_distances(through, bodies=(w.object_id,))
+    both = w.link_signed_distances(through, include_object=True)
+    np.testing.assert_allclose(both, np.minimum(env, obj), atol=1e-9)
+    assert obj.min() < 0 and not np.allclose(env, both)  # the object is the nearest body of some link
+
+
 def test_set_q_validates(ham_arc):
     with pytest.raises(InputError, match=r"q: expected shape \(19,\)"):
         ham_arc.set_q(np.zeros(18))
