@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+import subprocess
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-__all__ = ["TrialRecord", "open_db", "finished_keys", "insert_trial", "load_trials"]
+__all__ = ["TrialRecord", "open_db", "finished_keys", "insert_trial", "load_trials", "source_commit"]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS trials (
@@ -34,6 +35,26 @@ CREATE TABLE IF NOT EXISTS trials (
     PRIMARY KEY (row, planner, trial)
 )
 """
+
+
+def source_commit(root: str | os.PathLike | None = None) -> str:
+    """The commit of a source tree (default: this package's), for a trial's provenance: ``git rev-parse
+    HEAD``, with ``-dirty`` appended when tracked files outside ``results/`` differ from it (a run of
+    uncommitted code), or ``"unknown"`` outside a git checkout."""
+    root = Path(__file__).resolve().parent.parent if root is None else Path(root)
+
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, timeout=10)
+
+    try:
+        head = git("rev-parse", "HEAD")
+        if head.returncode != 0 or not head.stdout.strip():
+            return "unknown"
+        # exit status 1: tracked sources differ from HEAD (the reports under results/ do not count)
+        dirty = git("diff", "--quiet", "HEAD", "--", ".", ":(exclude)results").returncode == 1
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head.stdout.strip() + ("-dirty" if dirty else "")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,6 @@ import hashlib
 import json
 import logging
 import os
-import subprocess
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -42,7 +41,15 @@ from assets.errors import InputError
 
 from .grasp_planner import PLANNERS, PlanningSettings
 from .paper import ROWS
-from .results_db import TrialRecord, finished_keys, insert_trial, load_trials, open_db, params_json
+from .results_db import (
+    TrialRecord,
+    finished_keys,
+    insert_trial,
+    load_trials,
+    open_db,
+    params_json,
+    source_commit,
+)
 
 __all__ = [
     "Table1Config",
@@ -56,7 +63,6 @@ __all__ = [
     "make_tasks",
     "run_trial",
     "run_table1",
-    "git_commit",
 ]
 
 log = logging.getLogger(__name__)
@@ -146,22 +152,6 @@ def trial_rng(seed: int, row: str, planner: str, trial: int) -> np.random.Genera
     """The generator of one trial: ``SeedSequence(seed, spawn_key=(ROWS index, PLANNERS index, trial))``."""
     key = (ROWS.index(row), PLANNERS.index(planner), int(trial))
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-
-
-def git_commit() -> str:
-    """``git rev-parse HEAD`` of the source tree, or ``"unknown"``."""
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        )
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 # -- the strategy pipeline (cached) ------------------------------------------------------------------
@@ -535,7 +525,7 @@ def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
         for row in config.rows
     }
     strategy_time_s = time.perf_counter() - start
-    commit = git_commit()
+    commit = source_commit()
     conn = open_db(config.db_path)
     try:
         _check_params(

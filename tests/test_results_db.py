@@ -1,6 +1,6 @@
 """The trial store: rows written one by one, resumable, never duplicated."""
 
-from planning.results_db import TrialRecord, finished_keys, insert_trial, load_trials, open_db
+from planning.results_db import TrialRecord, finished_keys, insert_trial, load_trials, open_db, source_commit
 
 
 def rec(trial, success=True, planner="learned"):
@@ -24,3 +24,24 @@ def test_insert_resume_and_no_duplicates(tmp_path):
     assert [r.success for r in rows if r.planner == "learned"] == [True, True, True]
     assert rows[1] == rec(0)
     assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_source_commit_names_head_and_marks_uncommitted_sources_dirty(tmp_path):
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True)
+
+    assert source_commit(tmp_path) == "unknown"  # not a checkout
+    git("init", "-q")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "code.py").write_text("a = 1\n")
+    (tmp_path / "results" / "table1.md").write_text("old\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@example.org", "commit", "-qm", "init")
+    head = git("rev-parse", "HEAD").stdout.strip()
+    assert len(head) == 40 and source_commit(tmp_path) == head
+    (tmp_path / "results" / "table1.md").write_text("a new report\n")  # the run's own output
+    assert source_commit(tmp_path) == head
+    (tmp_path / "code.py").write_text("a = 2\n")
+    assert source_commit(tmp_path) == head + "-dirty"

@@ -8,7 +8,6 @@ and trials already stored there are skipped, so an interrupted run resumes.
 from __future__ import annotations
 
 import json
-import subprocess
 
 import numpy as np
 from tqdm import tqdm
@@ -39,18 +38,10 @@ def add_arguments(p) -> None:
     p.add_argument("--no-progress", action="store_true")
 
 
-def _git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
-        return out.stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
 def run(args) -> int:
     from assets.errors import InputError
     from planning.grasp_planner import GraspPlanner, PlanningSettings
-    from planning.results_db import TrialRecord, finished_keys, insert_trial, open_db
+    from planning.results_db import TrialRecord, finished_keys, insert_trial, open_db, source_commit
 
     if args.trials < 1:
         raise InputError(f"--trials: expected a count >= 1, found {args.trials}")
@@ -66,7 +57,7 @@ def run(args) -> int:
     done = finished_keys(conn) if conn else set()
     row = str(args.scene)
     seeds = np.random.SeedSequence(args.seed).spawn(args.trials)
-    commit = _git_commit()
+    commit = source_commit()
     results = []
     best = None
     with GraspPlanner(args.scene, models) as planner:
