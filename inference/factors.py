@@ -45,6 +45,9 @@ __all__ = [
 N_JOINTS = 13
 FingertipMap = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
+ConstraintGradientFn = Callable[[np.ndarray, np.ndarray], "tuple[np.ndarray, np.ndarray]"]
+"""``(T_world_wrist (4, 4), joints (13,)) -> (phi (m,), grad (m, 19))``, grad in the tangent of
+:func:`constraint_gradient`: an analytic alternative to its central differences."""
 
 
 def demonstration_error(

@@ -8,11 +8,11 @@ The graph (paper section V, see :mod:`inference.factors`) is P(O) P(X_1..X_T | O
 Constraints (sections V-B and VI): ``phi = constraint_fn(T_world_wrist (4,4), joints (13,))``, a scalar or a
 vector (e.g. the signed distance of each hand link to the table and obstacles), is evaluated at
 ``mu_o tau_r(t)``; its components below ``activation_distance`` are active. A step with active components gets
-a vector variable ``C_t``, a factor ``C_t = phi0 + G dx`` (the active rows of phi linearized by central
-differences at the current estimate, variance 1e-10) and a prior ``N(r_t, R_t)`` with
-``r_t = phi(mu_o tau_r(t))`` clipped to ``[clearance, activation_distance]`` and ``R_t = constraint_std^2 I``;
-the clearance may differ per component (``constraint_clearance_mm``: the planner holds the hand's links 10 mm
-from the table and obstacles, 3 mm from the grasped object).
+a vector variable ``C_t``, a factor ``C_t = phi0 + G dx`` (the active rows of phi linearized at the current
+estimate, by central differences or by a given ``constraint_gradient_fn``; variance 1e-10) and a prior
+``N(r_t, R_t)`` with ``r_t = phi(mu_o tau_r(t))`` clipped to ``[clearance, activation_distance]`` and
+``R_t = constraint_std^2 I``; the clearance may differ per component (``constraint_clearance_mm``: the planner
+holds the hand's links 10 mm from the table and obstacles, 3 mm from the grasped object).
 Linearize, solve (with a trust region: priors ``N(x0, trust_stds)`` tying each constrained step to its
 linearization point ``x0``, so that one solve stays where the linearization holds), move the linearization
 point half way (``relinearization_damping``) to the new means and repeat until they move less than
@@ -61,7 +61,7 @@ import json
 import logging
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,6 +74,8 @@ from retarget.lie import local, retract, se3_inverse
 from retarget.trajectory import GRASP_TYPES, Trajectory
 
 from .factors import (
+    ConstraintFn,
+    ConstraintGradientFn,
     FingertipMap,
     constraint_factors,
     constraint_gradient,
@@ -107,7 +109,6 @@ _SOURCE_KEYS = (
     "object",
     "grasp_type",
 )
-ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
 
 
 def key_o() -> int:
@@ -425,6 +426,7 @@ def solve(
     constraint_fn: ConstraintFn | None = None,
     fingertip_map: FingertipMap | None = None,
     constraint_clearance_mm: float | Sequence[float] | None = None,
+    constraint_gradient_fn: ConstraintGradientFn | None = None,
 ) -> VariationModel:
     """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
 
@@ -437,6 +439,9 @@ def solve(
         fingertip_map: the Sigma_m mapping of :func:`inference.factors.modeling_covariance`.
         constraint_clearance_mm: the clearance of each component of phi [mm] (a number for all, or one per
             component); default ``params.clearance_mm`` for all.
+        constraint_gradient_fn: ``(T_world_wrist, joints) -> (phi (m,), grad (m, 19))``, the same phi with
+            its gradient (e.g. from the contact normals); default central differences of ``constraint_fn``
+            (``params.gradient_step``), 2 x 19 more evaluations of phi per constrained step.
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -484,7 +489,10 @@ def solve(
     for iterations in range(1, (params.max_iterations if active else 1) + 1):
         lin = {}
         for t, mask in active.items():
-            phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
+            if constraint_gradient_fn is None:
+                phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
+            else:
+                phi0, grad = _constraint_gradient_values(constraint_gradient_fn, W_prev[t], J_prev[t], t)
             phi0, grad = np.atleast_1d(phi0)[mask], np.atleast_2d(grad)[mask]
             clear_t = np.broadcast_to(clear_m, mask.shape)[mask]
             r_t = np.clip(phi_tau[t][mask], clear_t, np.maximum(act_m, clear_t))
@@ -553,6 +561,21 @@ def _constraint_values(constraint_fn: ConstraintFn, T_world_wrist: np.ndarray, j
     if phi.ndim != 1 or not np.all(np.isfinite(phi)):
         raise InputError(f"constraint function returned {phi.tolist()} at step {t}: expected finite values")
     return phi
+
+
+def _constraint_gradient_values(
+    gradient_fn: ConstraintGradientFn, T_world_wrist: np.ndarray, joints: np.ndarray, t: int
+) -> tuple[np.ndarray, np.ndarray]:
+    phi, grad = gradient_fn(T_world_wrist, np.array(joints))
+    phi, grad = np.atleast_1d(np.asarray(phi, dtype=float)), np.atleast_2d(np.asarray(grad, dtype=float))
+    if phi.ndim != 1 or grad.shape != (phi.size, 19):
+        raise InputError(
+            f"constraint gradient function at step {t}: expected phi (m,) and grad (m, 19), found shapes "
+            f"{phi.shape} and {grad.shape}"
+        )
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(grad))):
+        raise InputError(f"constraint gradient function returned a non-finite value at step {t}")
+    return phi, grad
 
 
 def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation_m: float) -> bool:

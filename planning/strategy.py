@@ -31,6 +31,7 @@ __all__ = [
     "object_frame_is_free",
     "object_frame_penetration",
     "signed_distance_fn",
+    "signed_distance_gradient_fn",
     "retarget_in_scene",
     "learn_in_scene",
 ]
@@ -93,6 +94,27 @@ def signed_distance_fn(
     return signed_distance
 
 
+def signed_distance_gradient_fn(
+    world: World, include_object: bool = False, object_max_distance_m: float = 0.05
+) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``(T_world_wrist, joints) -> (phi, grad)``: :func:`signed_distance_fn`'s phi and its analytic gradient
+    (m, 19) in the tangent ``[omega, v, joints]`` of ``T_world_wrist @ Exp(xi)``
+    (:meth:`~planning.world.World.link_signed_distance_gradients`): one distance query where central
+    differences make 2 x 19 more (on the ham: 10-20 ms per step instead of ~0.5 s)."""
+
+    def phi_and_gradient(T_world_wrist: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.concatenate([q_from_pose(T_world_wrist), joints])
+        phi, grad = world.link_signed_distance_gradients(q)
+        if include_object:
+            phi_o, grad_o = world.link_signed_distance_gradients(
+                q, object_max_distance_m, bodies=(world.object_id,)
+            )
+            phi, grad = np.concatenate([phi, phi_o]), np.vstack([grad, grad_o])
+        return phi, grad
+
+    return phi_and_gradient
+
+
 def retarget_in_scene(
     demo: Demonstration,
     scene: Scene | None,
@@ -140,14 +162,14 @@ def learn_in_scene(traj: Trajectory, scene: Scene, params: VariationParams | Non
         clearance_mm = np.r_[
             np.full(n_links, params.clearance_mm), np.full(n_links, params.object_clearance_mm)
         ]
+        # beyond the activation distance a component is never constrained: 5 mm more is enough
+        object_range_m = 1e-3 * (params.activation_distance_mm + 5.0)
         return solve(
             traj,
             params,
             T_world_object=scene.T_world_object,
             cov_object=scene.cov_object,
-            # beyond the activation distance a component is never constrained: 5 mm more is enough
-            constraint_fn=signed_distance_fn(
-                world, include_object=True, object_max_distance_m=1e-3 * (params.activation_distance_mm + 5.0)
-            ),
+            constraint_fn=signed_distance_fn(world, True, object_range_m),
+            constraint_gradient_fn=signed_distance_gradient_fn(world, True, object_range_m),
             constraint_clearance_mm=clearance_mm,
         )

@@ -238,6 +238,7 @@ class World:
             pb.setCollisionFilterPair(self.hand_id, self.hand_id, links[a], links[b], 0, physicsClientId=c)
         self.dof = 6 + len(self.joint_names)
         self.q = None
+        self._kin = None
         log.debug(
             "world %s: hand %s with %d joints, %d obstacles",
             s.name,
@@ -379,16 +380,73 @@ class World:
             (1 + number of links,): the wrist (pybullet index -1) first, then the links in
             :attr:`link_names` order; negative in penetration, ``max_distance_m`` when nothing is closer.
         """
+        return self._closest_points(q, max_distance_m, include_object, bodies)[0]
+
+    def link_signed_distance_gradients(
+        self,
+        q: np.ndarray,
+        max_distance_m: float = 0.05,
+        include_object: bool = False,
+        bodies: tuple[int, ...] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`link_signed_distances` and their gradient, from one query.
+
+        A link's distance changes as its closest point ``p`` moves along the contact normal ``n`` (from the
+        other body towards the link; the other body is static): ``d phi = n . dp``, with ``dp`` from the
+        hand's analytic kinematics (:meth:`retarget.kinematics.HandModel.point_jacobian`). Exact to first
+        order wherever the closest features do not switch.
+
+        Returns:
+            phi (1 + number of links,) [m] and grad (1 + number of links, dof): the columns are the wrist
+            tangent ``[omega (rad), v (m)]`` of ``T_world_wrist @ Exp(xi)`` (GTSAM's Pose3 retract, body
+            frame), then the joints in ``q[6:]`` order [rad]; a link with nothing within
+            ``max_distance_m`` has a zero row.
+        """
+        from retarget.lie import pose_from_q
+
+        phi, closest = self._closest_points(q, max_distance_m, include_object, bodies)
+        kin, perm = self._kinematics()
+        joints = np.empty(kin.n)
+        joints[perm] = np.asarray(q, dtype=float)[6:]
+        poses = kin.fk(joints)
+        T_world_wrist = pose_from_q(q[:6])
+        R, t = T_world_wrist[:3, :3], T_world_wrist[:3, 3]
+        grad = np.zeros((len(phi), self.dof))
+        for i, (p_world, n_world) in closest.items():
+            p_wrist, n_wrist = R.T @ (p_world - t), R.T @ n_world
+            grad[i, :3] = np.cross(p_wrist, n_wrist)  # n . R (omega x p_wrist)
+            grad[i, 3:6] = n_wrist
+            if i > 0:
+                J = kin.point_jacobian(joints, self.link_names[i - 1], poses, point=p_wrist)
+                grad[i, 6:] = (n_wrist @ J)[perm]
+        return phi, grad
+
+    def _closest_points(
+        self, q: np.ndarray, max_distance_m: float, include_object: bool, bodies: tuple[int, ...] | None
+    ) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]]]:
+        """Per link (wrist first), the smallest signed distance and, where within ``max_distance_m``, its
+        closest point on the link and the contact normal (both world frame)."""
         self.set_q(q)
         if bodies is None:
             bodies = self._bodies if include_object else (self.table_id, *self.obstacle_ids)
         out = np.full(1 + len(self.link_names), float(max_distance_m))
+        closest: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for b in bodies:
             for p in pb.getClosestPoints(self.hand_id, b, max_distance_m, physicsClientId=self.client):
                 i = p[3] + 1
                 if p[8] < out[i]:
                     out[i] = p[8]
-        return out
+                    closest[i] = (np.asarray(p[5], dtype=float), np.asarray(p[7], dtype=float))
+        return out, closest
+
+    def _kinematics(self):
+        """The hand's analytic kinematics and, for each joint of ``q[6:]``, its index in the model's order."""
+        if self._kin is None:
+            from retarget.kinematics import load_hand_model
+
+            kin = load_hand_model(str(assets.hand_urdf(self.hand)))
+            self._kin = (kin, np.array([kin.joint_names.index(n) for n in self.joint_names]))
+        return self._kin
 
     def rest_q(self) -> np.ndarray:
         """The open hand (:func:`hand_rest_joints`) with the wrist at the world origin: (dof,)."""

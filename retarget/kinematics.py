@@ -223,23 +223,28 @@ class HandModel:
         return idx[::-1]
 
     def point_jacobian(
-        self, joints: np.ndarray, link: str, poses: dict[str, np.ndarray] | None = None
+        self,
+        joints: np.ndarray,
+        link: str,
+        poses: dict[str, np.ndarray] | None = None,
+        point: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Analytic Jacobian of the origin of ``link`` (base frame) w.r.t. the actuated joints.
+        """Analytic Jacobian of a point fixed to ``link`` (base frame) w.r.t. the actuated joints.
 
         A mimic joint adds ``multiplier`` times its column to the joint it copies.
 
         Args:
             joints: (..., n) [rad].
-            link: the link whose origin is differentiated.
+            link: the link the point moves with.
             poses: the result of :meth:`fk` at ``joints``, to avoid recomputing it.
+            point: (..., 3) the point's current position in the base frame [m]; default the link's origin.
 
         Returns:
             (..., 3, n) [m/rad].
         """
         joints = np.asarray(joints, dtype=float)
         poses = self.fk(joints) if poses is None else poses
-        p = poses[link][..., :3, 3]
+        p = poses[link][..., :3, 3] if point is None else np.asarray(point, dtype=float)
         J = np.zeros(joints.shape[:-1] + (3, self.n))
         src = self._plan[1][0]
         mult = self._plan[1][1]

@@ -306,6 +306,45 @@ def test_per_component_clearances_hold_each_component_at_its_own_distance():
         )
 
 
+def test_an_analytic_constraint_gradient_gives_the_central_differences_model():
+    """The floor and wall with their closed-form gradient, d phi / d [omega, v] = [0, R[axis]] (a body
+    twist moves the wrist position by R v): the same means and covariances as central differences; a
+    gradient of the wrong shape is an InputError."""
+    n = 10
+    s = np.linspace(0, 1, n)
+    xi = np.zeros((n, 6))
+    xi[:, 5] = 0.003 + 0.15 * np.clip(1 - s / 0.6, 0, None)
+    traj = make_traj(n=n, T_world_object=np.eye(4), xi_path=xi, seed=6, cov_scale=0.003)
+    x0 = traj.T_object_wrist[-1, 0, 3] - 0.003
+
+    def floor_and_wall(T_world_wrist, joints):
+        return np.array([T_world_wrist[2, 3], T_world_wrist[0, 3] - x0])
+
+    def with_gradient(T_world_wrist, joints):
+        grad = np.zeros((2, 19))
+        grad[0, 3:6], grad[1, 3:6] = T_world_wrist[2, :3], T_world_wrist[0, :3]
+        return floor_and_wall(T_world_wrist, joints), grad
+
+    numeric = solve(traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall)
+    analytic = solve(
+        traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=with_gradient
+    )
+    assert analytic.converged and analytic.constrained.sum() >= 2
+    np.testing.assert_array_equal(analytic.constrained, numeric.constrained)
+    # central differences of a linear phi are exact up to rounding (step 1 mm)
+    np.testing.assert_allclose(analytic.T_object_wrist_mean, numeric.T_object_wrist_mean, atol=1e-7)
+    np.testing.assert_allclose(analytic.joints_mean, numeric.joints_mean, atol=1e-7)
+    np.testing.assert_allclose(analytic.cov, numeric.cov, rtol=1e-5, atol=1e-12)
+
+    def wrong_shape(T_world_wrist, joints):
+        return floor_and_wall(T_world_wrist, joints), np.zeros((2, 18))
+
+    with pytest.raises(InputError, match=r"expected phi \(m,\) and grad \(m, 19\)"):
+        solve(
+            traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=wrong_shape
+        )
+
+
 def test_save_load_roundtrip(tmp_path):
     traj = make_traj(n=4, seed=7)
     model = solve(traj, fingertip_map=_standin_map)

@@ -56,6 +56,23 @@ def test_point_jacobian_includes_mimic(arm):
     assert np.abs(J[:, 0] - num).max() < 1e-8
 
 
+def test_point_jacobian_of_a_point_fixed_to_a_link(arm):
+    """A point 5 cm along l1's x axis and 2 cm up: its Jacobian (given the point's base-frame position)
+    equals the central difference of the point carried by l1's frame; at the origin it is the default."""
+    q = np.array([0.4])
+    r_l1 = np.array([0.05, 0.0, 0.02, 1.0])  # the point in l1's frame
+    point = (arm.fk(q)["l1"] @ r_l1)[:3]
+    J = arm.point_jacobian(q, "l1", point=point)
+    h = 1e-6
+    num = ((arm.fk(q + h)["l1"] @ r_l1)[:3] - (arm.fk(q - h)["l1"] @ r_l1)[:3]) / (2 * h)
+    assert np.abs(J[:, 0] - num).max() < 1e-8
+    # closed form: the point turns about z through (0, 0, 0.1) at radius 0.05
+    np.testing.assert_allclose(J[:, 0], [-0.05 * np.sin(0.4), 0.05 * np.cos(0.4), 0.0], atol=TOL)
+    origin = arm.fk(q)["tip"][:3, 3]
+    at_origin = arm.point_jacobian(q, "tip", point=origin)
+    np.testing.assert_allclose(at_origin, arm.point_jacobian(q, "tip"), atol=TOL)
+
+
 def test_rpy_convention(tmp_path):
     urdf = ARM.replace('<origin xyz="0 0 0.1" rpy="0 0 0"/>', '<origin xyz="0 0 0" rpy="0.3 -0.2 0.5"/>')
     p = tmp_path / "a.urdf"
