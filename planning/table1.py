@@ -29,6 +29,7 @@ import hashlib
 import json
 import logging
 import os
+import platform
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -63,6 +64,7 @@ __all__ = [
     "make_tasks",
     "run_trial",
     "run_table1",
+    "float_kernels",
 ]
 
 log = logging.getLogger(__name__)
@@ -177,6 +179,14 @@ MODEL_SOURCES = (
 )
 
 
+def float_kernels() -> str:
+    """The floating-point kernels this process computes with: the machine and the two variables that pin
+    numpy's and OpenBLAS's kernels (the Makefile sets them on x86-64). Part of every cache key: the
+    retargeting's result depends on them (chips' MSE 856 mm^2 with AVX2 kernels, 988 with AVX-512)."""
+    pins = (f"{k}={os.environ.get(k, '')}" for k in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES"))
+    return " ".join([platform.machine(), *pins])
+
+
 def _source_digest(entries: Sequence[str]) -> str:
     """SHA-256 of the Python sources a cached step runs (folders or files relative to the package root)."""
     files: list[Path] = []
@@ -255,6 +265,7 @@ def prepare_strategy(
         [
             f"retarget v{CACHE_VERSION}",
             _source_digest(RETARGET_SOURCES),
+            float_kernels(),
             _sha256_file(demo_path),
             repr(config),
         ]
@@ -269,7 +280,7 @@ def prepare_strategy(
     traj = Trajectory.load(traj_path)
     params = VariationParams()
     model_key = _digest(
-        [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), _sha256_file(traj_path)]
+        [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), float_kernels(), _sha256_file(traj_path)]
         + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]
         + [_sha256_file(f) for f in _scene_files(scene)]
     )

@@ -53,7 +53,7 @@ def run(args) -> int:
     from planning.grasp_planner import PLANNERS
     from planning.paper import ROWS
     from planning.report import write_report
-    from planning.table1 import Table1Config, parse_names, run_table1, strategy_final_q
+    from planning.table1 import Table1Config, float_kernels, parse_names, run_table1, strategy_final_q
 
     if args.workers is not None and args.workers < 0:
         raise InputError(f"--workers: expected >= 0, found {args.workers}")
@@ -110,7 +110,7 @@ def run(args) -> int:
             f"{summary.errors} failed tasks, {summary.workers or 'no'} Dask worker(s)",
             "time inside the stored trials (sum)": f"{trial_time:.0f} s "
             f"(= {trial_time / max(summary.workers, 1) / 60:.1f} min on {max(summary.workers, 1)} worker(s))",
-            "machine": f"{os.cpu_count()} cores",
+            "machine": f"{os.cpu_count()} cores; floating-point kernels: {float_kernels()}",
             "date": time.strftime("%Y-%m-%d %H:%M"),
         },
     }
