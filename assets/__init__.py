@@ -84,6 +84,11 @@ def object_mesh(name: str) -> Path:
     return object_dir(name) / f"{name}.obj"
 
 
+def object_collision_mesh(name: str) -> Path:
+    """Path of an object's collision geometry: its exact convex decomposition, one OBJ object per piece."""
+    return object_dir(name) / f"{name}_collision.obj"
+
+
 def object_metadata(name: str) -> dict:
     """An object's ``object.yaml``: dimensions, mass, friction, centre of mass, max radius, source."""
     with open(object_dir(name) / "object.yaml") as f:

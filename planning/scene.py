@@ -92,7 +92,9 @@ class Obstacle:
         type: ``box`` (``size_m`` full extents, pose of its centre), ``cylinder`` (``radius_m``,
             ``height_m``, pose of its centre, axis along its z), ``object`` (a shipped object ``name``,
             pose of the object frame) or ``mesh`` (``file``, relative to the scene file, ``scale``,
-            pose of the mesh frame; loaded as a static concave triangle mesh).
+            pose of the mesh frame; optional ``collision_file``, the mesh's convex pieces as one OBJ
+            object each, loaded as a solid compound; without it the mesh is a static concave triangle
+            mesh, which Bullet treats as a surface: a link wholly inside it goes unseen).
         position_m, rpy_deg: the pose as above.
         label: a name for messages (defaults to ``<type><index>``).
     """
@@ -106,6 +108,7 @@ class Obstacle:
     height_m: float | None = None
     name: str | None = None
     file: Path | None = None
+    collision_file: Path | None = None
     scale: float = 1.0
 
     @property
@@ -219,7 +222,8 @@ def _obstacle(r: _Reader, d, i: int) -> Obstacle:
     extra = {"box": {"size_m"}, "cylinder": {"radius_m", "height_m"}, "object": {"name"}, "mesh": {"file"}}[
         kind
     ]
-    r.mapping(d, f, common | extra, {"rpy_deg", "label", "scale"} if kind == "mesh" else {"rpy_deg", "label"})
+    optional = {"rpy_deg", "label", "scale", "collision_file"} if kind == "mesh" else {"rpy_deg", "label"}
+    r.mapping(d, f, common | extra, optional)
     kw = dict(
         type=kind,
         position_m=r.vector(d["position_m"], f"{f}.position_m", 3),
@@ -238,6 +242,11 @@ def _obstacle(r: _Reader, d, i: int) -> Obstacle:
         if not file.is_file():
             r.fail(f"{f}.file", f"no such mesh file {file}")
         kw["file"] = file
+        if "collision_file" in d:
+            collision = (r.path.parent / r.string(d["collision_file"], f"{f}.collision_file")).resolve()
+            if not collision.is_file():
+                r.fail(f"{f}.collision_file", f"no such mesh file {collision}")
+            kw["collision_file"] = collision
         kw["scale"] = r.number(d.get("scale", 1.0), f"{f}.scale", positive=True)
     return Obstacle(**kw)
 

@@ -199,12 +199,15 @@ def _source_digest(entries: Sequence[str]) -> str:
 
 def _scene_files(scene) -> list[Path]:
     """Every file a scene's geometry comes from: the YAML, its object, object obstacles and meshes."""
-    files = [Path(scene.path), assets.object_urdf(scene.object.name), assets.object_mesh(scene.object.name)]
+    def object_files(name: str) -> list[Path]:
+        return [assets.object_urdf(name), assets.object_mesh(name), assets.object_collision_mesh(name)]
+
+    files = [Path(scene.path), *object_files(scene.object.name)]
     for ob in scene.obstacles:
         if ob.type == "object":
-            files += [assets.object_urdf(ob.name), assets.object_mesh(ob.name)]
+            files += object_files(ob.name)
         elif ob.type == "mesh":
-            files.append(Path(ob.file))
+            files += [Path(ob.file)] + ([Path(ob.collision_file)] if ob.collision_file else [])
     return files + [assets.hand_urdf(scene.hand)]
 
 

@@ -2,7 +2,8 @@
 
 One :class:`World` owns one pybullet client in DIRECT mode (never the global default client); close it
 with :meth:`World.close` or use it as a context manager. Everything but the hand is a static body
-(mass 0, concave triangle meshes for the objects). The hand is loaded as a movable multibody that is
+(mass 0; the objects and mesh obstacles as compounds of their exact convex pieces, so solids: see
+``assets/objects/build_objects.py``). The hand is loaded as a movable multibody that is
 never stepped, only teleported by :meth:`World.set_q`, so Bullet computes its contacts with the static
 bodies and, with ``URDF_USE_SELF_COLLISION``, between its own links (parent-child pairs excluded).
 
@@ -279,13 +280,18 @@ class World:
             )
         else:
             scale = [ob.scale] * 3
-            col = pb.createCollisionShape(
-                pb.GEOM_MESH,
-                fileName=str(ob.file),
-                meshScale=scale,
-                flags=pb.GEOM_FORCE_CONCAVE_TRIMESH,
-                physicsClientId=c,
-            )
+            if ob.collision_file is not None:  # convex pieces, one OBJ object each: a solid compound
+                col = pb.createCollisionShape(
+                    pb.GEOM_MESH, fileName=str(ob.collision_file), meshScale=scale, physicsClientId=c
+                )
+            else:  # a surface only: links wholly inside it are not seen
+                col = pb.createCollisionShape(
+                    pb.GEOM_MESH,
+                    fileName=str(ob.file),
+                    meshScale=scale,
+                    flags=pb.GEOM_FORCE_CONCAVE_TRIMESH,
+                    physicsClientId=c,
+                )
             vis = pb.createVisualShape(
                 pb.GEOM_MESH, fileName=str(ob.file), meshScale=scale, rgbaColor=rgba, physicsClientId=c
             )

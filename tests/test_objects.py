@@ -90,3 +90,79 @@ def test_urdf_loads_static_in_pybullet(name):
         assert np.abs(bb - np.array(assets.object_metadata(name)["dimensions_m"])).max() < 0.01
     finally:
         pb.disconnect(c)
+
+
+SOLID_PROBE_RADIUS_M = 0.002
+SOLID_MARGIN_M = 0.004  # probe centres this far inside (or outside) the mesh, by Open3D's signed distance
+
+
+def _mesh_signed_distance(name, points):
+    """Signed distance (negative inside) of points to the watertight visual mesh: Open3D's ray casting,
+    independent of the collision pieces and of pybullet."""
+    mesh, _, _ = _mesh(name)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
+    return scene.compute_signed_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+
+
+@pytest.mark.parametrize("name", sorted(STATED))
+def test_collision_shape_is_the_solid(name):
+    """Points deep inside the mesh collide with the object's collision shape (a concave triangle mesh, a
+    surface to Bullet, missed them), points well outside it (a mug's hollow, a bottle's shoulder) do not."""
+    meta = assets.object_metadata(name)
+    lo, hi = (np.array(meta["bounding_box_m"][k]) for k in ("min", "max"))
+    rng = np.random.default_rng(0)
+    lo, hi = lo - 0.01, hi + 0.01  # a margin for the outside probes of the convex objects
+    points = lo + (hi - lo) * rng.random((20000, 3))
+    sd = _mesh_signed_distance(name, points)
+    inside, outside = points[sd < -SOLID_MARGIN_M][:40], points[sd > SOLID_MARGIN_M][:40]
+    assert len(inside) >= 20 and len(outside) >= 20
+    c = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(assets.object_urdf(name)), useFixedBase=True, physicsClientId=c)
+        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=SOLID_PROBE_RADIUS_M, physicsClientId=c)
+        probe = pb.createMultiBody(0.0, shape, -1, [1.0, 1.0, 1.0], physicsClientId=c)
+
+        def distance(p):
+            pb.resetBasePositionAndOrientation(probe, p.tolist(), [0, 0, 0, 1], physicsClientId=c)
+            cps = pb.getClosestPoints(body, probe, 0.05, physicsClientId=c)
+            return min(cp[8] for cp in cps) if cps else np.inf
+
+        d_in = np.array([distance(p) for p in inside])
+        d_out = np.array([distance(p) for p in outside])
+    finally:
+        pb.disconnect(c)
+    assert d_in.max() < 0.0, f"{name}: {np.sum(d_in >= 0)} probes inside the solid are free"
+    assert d_out.min() > 0.0, f"{name}: {np.sum(d_out <= 0)} probes outside the solid collide"
+
+
+DISTANCE_TOL_M = 3e-4  # pybullet's distance to the collision shape against the mesh's (chords, float32)
+
+
+@pytest.mark.parametrize("name", sorted(STATED))
+def test_collision_distances_are_the_meshs(name):
+    """pybullet's distance from a probe sphere to the object (its convex pieces, inset by pybullet's 1 mm
+    convex margin) equals Open3D's distance to the watertight mesh minus the probe radius: the margin is
+    compensated and the pieces leave no gap (a gap would read larger, an overlap of the hollow smaller)."""
+    meta = assets.object_metadata(name)
+    lo, hi = (np.array(meta["bounding_box_m"][k]) - d for k, d in (("min", 0.02), ("max", -0.02)))
+    rng = np.random.default_rng(1)
+    points = lo + (hi - lo) * rng.random((5000, 3))
+    sd = _mesh_signed_distance(name, points)
+    keep = (sd > 0.003) & (sd < 0.03)
+    points, sd = points[keep][:60], sd[keep][:60]
+    c = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(assets.object_urdf(name)), useFixedBase=True, physicsClientId=c)
+        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=SOLID_PROBE_RADIUS_M, physicsClientId=c)
+        probe = pb.createMultiBody(0.0, shape, -1, [1.0, 1.0, 1.0], physicsClientId=c)
+        d = []
+        for p in points:
+            pb.resetBasePositionAndOrientation(probe, p.tolist(), [0, 0, 0, 1], physicsClientId=c)
+            d.append(min(cp[8] for cp in pb.getClosestPoints(body, probe, 0.05, physicsClientId=c)))
+        pieces = sum(1 for line in open(assets.object_collision_mesh(name)) if line.startswith("o "))
+    finally:
+        pb.disconnect(c)
+    assert pieces == meta["collision_pieces"]
+    err = np.abs(np.array(d) - (sd - SOLID_PROBE_RADIUS_M))
+    assert err.max() < DISTANCE_TOL_M, f"{name}: worst distance error {err.max() * 1e3:.2f} mm"
