@@ -170,12 +170,24 @@ def _digest(parts: Iterable[str]) -> str:
 
 
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-RETARGET_SOURCES = ("retarget", "planning/strategy.py")
+#: The code each cached step runs. Retargeting checks d6 in a pybullet world, so the world's code is part
+#: of its key too (it was not before 2026-12-01: an edit of world.py reused stale trajectories).
+RETARGET_SOURCES = (
+    "retarget",
+    "planning/strategy.py",
+    "planning/world.py",
+    "planning/scene.py",
+    "planning/_pybullet.py",
+)
 #: Sources inside those folders that no cached step runs: the demonstration generator only writes the
 #: demonstration files, whose contents are part of the retargeting key.
 UNCACHED_SOURCES = ("retarget/demo_generator.py",)
 MODEL_SOURCES = (
-    "inference", "planning/world.py", "planning/scene.py", "planning/_pybullet.py", "planning/strategy.py"
+    "inference",
+    "planning/world.py",
+    "planning/scene.py",
+    "planning/_pybullet.py",
+    "planning/strategy.py",
 )
 
 
@@ -199,6 +211,7 @@ def _source_digest(entries: Sequence[str]) -> str:
 
 def _scene_files(scene) -> list[Path]:
     """Every file a scene's geometry comes from: the YAML, its object, object obstacles and meshes."""
+
     def object_files(name: str) -> list[Path]:
         return [assets.object_urdf(name), assets.object_mesh(name), assets.object_collision_mesh(name)]
 
