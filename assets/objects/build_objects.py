@@ -15,8 +15,9 @@ that the union of the two closed components stays manifold.
 Collision geometry is an exact convex decomposition of the same loft, one OBJ object per convex piece,
 which pybullet loads as a compound of convex hulls (a solid: a hand link wholly inside the object
 collides, and penetration depths and normals are those of a solid). A concave triangle mesh is only a
-surface to Bullet: links inside it went unseen (on the salt box, 11 % of the configurations drawn near
-it were free by the surface and in collision by the solid) and each query cost ~1.7 times more. The
+surface to Bullet: a link wholly inside it went unseen (every probe sphere deep inside the salt box read
+free), its penetration depths and normals were those of the nearest triangle, and a query cost ~1.3
+times more. The
 pieces: for a stack of convex contours with rising z (cans, jar, bottle, boxes), the convex hull of each
 pair of consecutive contours; for a cup, its solid bottom as such a stack, its wall (a convex profile:
 the rectangle and the rounded rim) and the inner fillet swept over each of the N angular segments, and
