@@ -302,3 +302,17 @@ def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
     assert table1._source_digest(("retarget",)) == before
     (tmp_path / "retarget" / "retargeting.py").write_text("x = 2\n")
     assert table1._source_digest(("retarget",)) != before
+
+
+def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, monkeypatch):
+    """Retargeting's d6 runs the pybullet world: an edit of planning/world.py must change the trajectory's
+    source digest (it did not before 2026-12-01, so stale trajectories were reused)."""
+    from planning import table1
+
+    for rel in ("retarget/retargeting.py", "planning/strategy.py", "planning/world.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("x = 1\n")
+    monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
+    before = table1._source_digest(table1.RETARGET_SOURCES)
+    (tmp_path / "planning" / "world.py").write_text("x = 2\n")
+    assert table1._source_digest(table1.RETARGET_SOURCES) != before
