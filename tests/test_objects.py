@@ -105,33 +105,43 @@ def _mesh_signed_distance(name, points):
     return scene.compute_signed_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
 
 
-@pytest.mark.parametrize("name", sorted(STATED))
-def test_collision_shape_is_the_solid(name):
-    """Points deep inside the mesh collide with the object's collision shape (a concave triangle mesh, a
-    surface to Bullet, missed them), points well outside it (a mug's hollow, a bottle's shoulder) do not."""
+def _sample_around(name, grow_m, n, seed):
+    """``n`` uniform points (n, 3) in the object's bounding box grown by ``grow_m``, and their signed
+    distances (n,) to the mesh."""
     meta = assets.object_metadata(name)
     lo, hi = (np.array(meta["bounding_box_m"][k]) for k in ("min", "max"))
-    rng = np.random.default_rng(0)
-    lo, hi = lo - 0.01, hi + 0.01  # a margin for the outside probes of the convex objects
-    points = lo + (hi - lo) * rng.random((20000, 3))
-    sd = _mesh_signed_distance(name, points)
-    inside, outside = points[sd < -SOLID_MARGIN_M][:40], points[sd > SOLID_MARGIN_M][:40]
-    assert len(inside) >= 20 and len(outside) >= 20
+    lo, hi = lo - grow_m, hi + grow_m
+    points = lo + (hi - lo) * np.random.default_rng(seed).random((n, 3))
+    return points, _mesh_signed_distance(name, points)
+
+
+def _probe_distances(name, points):
+    """pybullet's distance (n,) from a probe sphere at each point to the object loaded from its URDF
+    (inf where nothing is within 5 cm)."""
     c = pb.connect(pb.DIRECT)
     try:
         body = pb.loadURDF(str(assets.object_urdf(name)), useFixedBase=True, physicsClientId=c)
         shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=SOLID_PROBE_RADIUS_M, physicsClientId=c)
         probe = pb.createMultiBody(0.0, shape, -1, [1.0, 1.0, 1.0], physicsClientId=c)
-
-        def distance(p):
+        d = []
+        for p in points:
             pb.resetBasePositionAndOrientation(probe, p.tolist(), [0, 0, 0, 1], physicsClientId=c)
             cps = pb.getClosestPoints(body, probe, 0.05, physicsClientId=c)
-            return min(cp[8] for cp in cps) if cps else np.inf
-
-        d_in = np.array([distance(p) for p in inside])
-        d_out = np.array([distance(p) for p in outside])
+            d.append(min(cp[8] for cp in cps) if cps else np.inf)
+        return np.array(d)
     finally:
         pb.disconnect(c)
+
+
+@pytest.mark.parametrize("name", sorted(STATED))
+def test_collision_shape_is_the_solid(name):
+    """Points deep inside the mesh collide with the object's collision shape (a concave triangle mesh, a
+    surface to Bullet, missed them), points well outside it (a mug's hollow, a bottle's shoulder) do not."""
+    # grown by 1 cm: outside probes for the convex objects too
+    points, sd = _sample_around(name, 0.01, 20000, seed=0)
+    inside, outside = points[sd < -SOLID_MARGIN_M][:40], points[sd > SOLID_MARGIN_M][:40]
+    assert len(inside) >= 20 and len(outside) >= 20
+    d_in, d_out = _probe_distances(name, inside), _probe_distances(name, outside)
     assert d_in.max() < 0.0, f"{name}: {np.sum(d_in >= 0)} probes inside the solid are free"
     assert d_out.min() > 0.0, f"{name}: {np.sum(d_out <= 0)} probes outside the solid collide"
 
@@ -144,25 +154,11 @@ def test_collision_distances_are_the_meshs(name):
     """pybullet's distance from a probe sphere to the object (its convex pieces, inset by pybullet's 1 mm
     convex margin) equals Open3D's distance to the watertight mesh minus the probe radius: the margin is
     compensated and the pieces leave no gap (a gap would read larger, an overlap of the hollow smaller)."""
-    meta = assets.object_metadata(name)
-    lo, hi = (np.array(meta["bounding_box_m"][k]) - d for k, d in (("min", 0.02), ("max", -0.02)))
-    rng = np.random.default_rng(1)
-    points = lo + (hi - lo) * rng.random((5000, 3))
-    sd = _mesh_signed_distance(name, points)
+    points, sd = _sample_around(name, 0.02, 5000, seed=1)
     keep = (sd > 0.003) & (sd < 0.03)
     points, sd = points[keep][:60], sd[keep][:60]
-    c = pb.connect(pb.DIRECT)
-    try:
-        body = pb.loadURDF(str(assets.object_urdf(name)), useFixedBase=True, physicsClientId=c)
-        shape = pb.createCollisionShape(pb.GEOM_SPHERE, radius=SOLID_PROBE_RADIUS_M, physicsClientId=c)
-        probe = pb.createMultiBody(0.0, shape, -1, [1.0, 1.0, 1.0], physicsClientId=c)
-        d = []
-        for p in points:
-            pb.resetBasePositionAndOrientation(probe, p.tolist(), [0, 0, 0, 1], physicsClientId=c)
-            d.append(min(cp[8] for cp in pb.getClosestPoints(body, probe, 0.05, physicsClientId=c)))
-        pieces = sum(1 for line in open(assets.object_collision_mesh(name)) if line.startswith("o "))
-    finally:
-        pb.disconnect(c)
-    assert pieces == meta["collision_pieces"]
-    err = np.abs(np.array(d) - (sd - SOLID_PROBE_RADIUS_M))
+    d = _probe_distances(name, points)
+    pieces = sum(1 for line in open(assets.object_collision_mesh(name)) if line.startswith("o "))
+    assert pieces == assets.object_metadata(name)["collision_pieces"]
+    err = np.abs(d - (sd - SOLID_PROBE_RADIUS_M))
     assert err.max() < DISTANCE_TOL_M, f"{name}: worst distance error {err.max() * 1e3:.2f} mm"
