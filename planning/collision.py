@@ -11,11 +11,16 @@ than its 13 mm fingertip radius. ``q_a`` itself is assumed free (it is a tree no
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from retarget.lie import quat_from_rotvec, slerp_rotvec
+from .config_space import HandConfigSpace
 
 __all__ = ["CollisionChecker"]
+
+#: the interpolation of the planner's edges (linear, slerp in orientation), also used to check them
+_SPACE = HandConfigSpace()
 
 
 class CollisionChecker:
@@ -48,22 +53,17 @@ class CollisionChecker:
         """The configurations checked along the edge, excluding ``q_a`` and including ``q_b``: (n, 19)."""
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
-        qa, qb = quat_from_rotvec(q_a[3:6]), quat_from_rotvec(q_b[3:6])
-        angle = 2.0 * np.arccos(min(abs(float(qa @ qb)), 1.0))
-        n = int(
-            np.ceil(
-                max(
-                    np.linalg.norm(q_b[:3] - q_a[:3]) / self.position_resolution_m,
-                    angle / self.rotation_resolution_rad,
-                    np.max(np.abs(q_b[6:] - q_a[6:])) / self.joint_resolution_rad,
-                    1.0,
-                )
+        n = math.ceil(
+            max(
+                math.sqrt(float((q_b[:3] - q_a[:3]) @ (q_b[:3] - q_a[:3]))) / self.position_resolution_m,
+                _SPACE.angle(q_a, q_b) / self.rotation_resolution_rad,
+                float(np.max(np.abs(q_b[6:] - q_a[6:]))) / self.joint_resolution_rad,
+                1.0,
             )
         )
-        s = np.arange(1, n + 1) / n
-        out = q_a + s[:, None] * (q_b - q_a)
-        out[:, 3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)
-        return out
+        if n <= 8:  # most planner steps: 2-3 points, cheaper one by one in plain floats
+            return np.array([_SPACE.interpolate(q_a, q_b, (i + 1) / n) for i in range(n)])
+        return _SPACE.interpolate_many(q_a, q_b, np.arange(1, n + 1) / n)
 
     def is_edge_free(self, q_a: np.ndarray, q_b: np.ndarray) -> bool:
         """Whether every configuration along the edge from ``q_a`` to ``q_b`` is free."""

@@ -91,6 +91,44 @@ def test_hand_space_distance_and_interpolation():
     np.testing.assert_allclose(space.distance_to(feats, b), [expected, 0.0], atol=1e-7)
 
 
+def test_hand_space_fast_paths_equal_scipy_rotations():
+    """distance, distance_to and interpolate work on plain floats (and distance_to through |a|^2 + |b|^2
+    - 2 a.b); they must equal the metric and the slerp computed with scipy, for pairs from 1e-9 apart
+    (where both shortcuts lose digits unless they fall back) to far apart."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    space = HandConfigSpace()
+    rng = np.random.default_rng(7)
+    scale = np.r_[[space.position_step_m] * 3, [space.joint_step_rad] * 13]
+    a_all, b_all, ref_d = [], [], []
+    for spread in (1e-9, 1e-5, 1e-2, 0.3, 2.0):
+        for _ in range(40):
+            a = rng.normal(size=19) * 0.5
+            b = a + rng.normal(size=19) * spread
+            ra, rb = Rotation.from_rotvec(a[3:6]), Rotation.from_rotvec(b[3:6])
+            angle = (ra.inv() * rb).magnitude()
+            lin = (np.r_[a[:3], a[6:]] - np.r_[b[:3], b[6:]]) / scale
+            d = np.sqrt(lin @ lin + (angle / space.rotation_step_rad) ** 2)
+            assert space.distance(a, b) == pytest.approx(d, rel=1e-9, abs=1e-7)
+            s = rng.uniform()
+            mid = space.interpolate(a, b, s)
+            lin_mid = np.r_[a[:3], a[6:]] - s * lin * scale  # lin is (a - b) / scale
+            np.testing.assert_allclose(np.r_[mid[:3], mid[6:]], lin_mid, atol=1e-12)
+            slerp = Slerp([0.0, 1.0], Rotation.concatenate([ra, rb]))([s])[0]
+            assert (slerp.inv() * Rotation.from_rotvec(mid[3:6])).magnitude() < 1e-9
+            many = space.interpolate_many(a, b, np.array([0.0, s, 1.0]))
+            np.testing.assert_allclose(many[1], mid, atol=1e-9)
+            a_all.append(a)
+            b_all.append(b)
+            ref_d.append(d)
+    feats = space.features(np.array(a_all))
+    for i, b in enumerate(b_all):
+        row = space.distance_to(feats, b)  # every node against b: entry i is the pair's distance
+        assert row[i] == pytest.approx(ref_d[i], rel=1e-9, abs=1e-7)
+        if i % 40 == 0:
+            np.testing.assert_allclose(row, [space.distance(a, b) for a in a_all], rtol=1e-9, atol=1e-7)
+
+
 def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops():
     """Last-step samples of a grasp lie partly inside the object; an extension towards one stops at the
     surface, which is where closing the hand makes a grasp. ``goal_radius`` admits that node."""
