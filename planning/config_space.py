@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from retarget.lie import rotvec_from_quat
+from retarget.lie import quat_of_rotvec, rotvec_from_quat
 
 __all__ = ["EuclideanSpace", "HandConfigSpace"]
 
@@ -67,7 +67,7 @@ class HandConfigSpace:
 
     def features(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        quat = np.array([_quat(*r) for r in q[:, 3:6].tolist()]).reshape(-1, 4)
+        quat = np.array([quat_of_rotvec(*r) for r in q[:, 3:6].tolist()]).reshape(-1, 4)
         lin = np.concatenate([q[:, :3] / self.position_step_m, q[:, 6:] / self.joint_step_rad], axis=1)
         return np.concatenate([lin, quat, (lin * lin).sum(axis=1, keepdims=True)], axis=1)
 
@@ -104,7 +104,7 @@ class HandConfigSpace:
 
     def angle(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         """The geodesic angle [rad] between the wrist orientations of ``q_a`` and ``q_b``."""
-        qa, qb = _quat(*q_a[3:6]), _quat(*q_b[3:6])
+        qa, qb = quat_of_rotvec(*q_a[3:6]), quat_of_rotvec(*q_b[3:6])
         sign = -1.0 if sum(x * y for x, y in zip(qa, qb, strict=True)) < 0 else 1.0
         minus = math.sqrt(sum((x - sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
         plus = math.sqrt(sum((x + sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
@@ -115,7 +115,7 @@ class HandConfigSpace:
         q_b = np.asarray(q_b, dtype=float)
         s = float(s)
         out = q_a + s * (q_b - q_a)
-        qa, qb = _quat(*q_a[3:6]), _quat(*q_b[3:6])
+        qa, qb = quat_of_rotvec(*q_a[3:6]), quat_of_rotvec(*q_b[3:6])
         dot = sum(x * y for x, y in zip(qa, qb, strict=True))
         if dot < 0:
             qb, dot = tuple(-y for y in qb), -dot
@@ -134,7 +134,7 @@ class HandConfigSpace:
         q_b = np.asarray(q_b, dtype=float)
         s = np.asarray(s, dtype=float).reshape(-1, 1)
         out = q_a + s * (q_b - q_a)
-        qa, qb = np.array(_quat(*q_a[3:6])), np.array(_quat(*q_b[3:6]))
+        qa, qb = np.array(quat_of_rotvec(*q_a[3:6])), np.array(quat_of_rotvec(*q_b[3:6]))
         dot = float(qa @ qb)
         if dot < 0:
             qb, dot = -qb, -dot
@@ -145,14 +145,6 @@ class HandConfigSpace:
             quat = (np.sin((1.0 - s) * omega) * qa + np.sin(s * omega) * qb) / math.sin(omega)
         out[:, 3:6] = rotvec_from_quat(quat / np.linalg.norm(quat, axis=1, keepdims=True))
         return out
-
-
-def _quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """The unit quaternion ``(x, y, z, w)`` of one rotation vector [rad], in plain floats."""
-    x, y, z = float(x), float(y), float(z)
-    theta = math.sqrt(x * x + y * y + z * z)
-    k = 0.5 - theta * theta / 48.0 if theta < 1e-6 else math.sin(0.5 * theta) / theta
-    return (x * k, y * k, z * k, math.cos(0.5 * theta))
 
 
 def _rotvec(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:

@@ -13,7 +13,6 @@ Collision query costs (this machine): see ``tests/test_world.py`` and the README
 from __future__ import annotations
 
 import logging
-import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
+from retarget.lie import quat_of_rotvec
 
 from ._pybullet import connect_direct, pb
 from .scene import Scene, load_scene
@@ -122,13 +122,6 @@ def _default_excluded_pairs(hand: str) -> tuple[tuple[str, str], ...]:
     else:
         return ()
     return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
-
-
-def _quat_from_rotvec(r: np.ndarray) -> list[float]:
-    """Quaternion [x, y, z, w] of a rotation vector (3,) [rad]; cheaper than scipy for one vector."""
-    theta = math.sqrt(float(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]))
-    k = 0.5 - theta * theta / 48.0 if theta < 1e-6 else math.sin(theta / 2) / theta
-    return [float(r[0]) * k, float(r[1]) * k, float(r[2]) * k, math.cos(theta / 2)]
 
 
 def _quat_xyzw(R: np.ndarray) -> list[float]:
@@ -312,7 +305,7 @@ class World:
             raise InputError("q: non-finite value")
         c = self.client
         pos, quat = pb.multiplyTransforms(
-            q[:3].tolist(), _quat_from_rotvec(q[3:6]), *self._wrist_inertial, physicsClientId=c
+            q[:3].tolist(), list(quat_of_rotvec(*q[3:6])), *self._wrist_inertial, physicsClientId=c
         )
         pb.resetBasePositionAndOrientation(self.hand_id, pos, quat, physicsClientId=c)
         joints = q[6:]

@@ -14,6 +14,8 @@ Conventions used everywhere in pbdgrasp:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -30,6 +32,7 @@ __all__ = [
     "pose_from_q",
     "q_from_pose",
     "quat_from_rotvec",
+    "quat_of_rotvec",
     "rotvec_from_quat",
     "slerp_rotvec",
 ]
@@ -163,6 +166,15 @@ def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
     # sin(theta/2)/theta with its Taylor series near 0
     k = np.where(theta < 1e-6, 0.5 - theta**2 / 48.0, np.sin(half) / np.where(theta < 1e-6, 1.0, theta))
     return np.concatenate([k * r, np.cos(half)], axis=-1)
+
+
+def quat_of_rotvec(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """The unit quaternion ``(x, y, z, w)`` (pybullet's and scipy's order) of one rotation vector [rad], in
+    plain floats: ~10x cheaper than :func:`quat_from_rotvec` on a single vector (the planner's hot path)."""
+    x, y, z = float(x), float(y), float(z)
+    theta = math.sqrt(x * x + y * y + z * z)
+    k = 0.5 - theta * theta / 48.0 if theta < 1e-6 else math.sin(0.5 * theta) / theta
+    return (x * k, y * k, z * k, math.cos(0.5 * theta))
 
 
 def rotvec_from_quat(quat: np.ndarray) -> np.ndarray:

@@ -60,6 +60,9 @@ def test_quaternion_helpers_and_slerp_match_scipy():
     ref = Rotation.from_rotvec(r).as_quat()
     ref *= np.sign(ref[:, 3:] + 1e-300) * np.sign(quat[:, 3:] + 1e-300)
     np.testing.assert_allclose(quat, ref, atol=1e-12)
+    r_small = np.vstack([r, [3e-7, -1e-7, 2e-7]])  # and the Taylor branch of the scalar version
+    scalar = np.array([lie.quat_of_rotvec(*v) for v in r_small])
+    np.testing.assert_allclose(scalar, lie.quat_from_rotvec(r_small), rtol=0, atol=1e-15)
     np.testing.assert_allclose(lie.so3_exp(lie.rotvec_from_quat(quat)), lie.so3_exp(r), atol=1e-9)
     s = np.linspace(0, 1, 7)
     for a, b in zip(r[2:10], r[10:18], strict=True):
