@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from retarget.lie import quat_of_rotvec, rotvec_from_quat
+from retarget.lie import quat_of_rotvec, slerp_rotvec
 
 __all__ = ["EuclideanSpace", "HandConfigSpace"]
 
@@ -80,12 +80,13 @@ class HandConfigSpace:
         if near.size:
             diff = features[near, :16] - f[:16]
             lin_sq[near] = np.einsum("ij,ij->i", diff, diff)
-        dot = np.abs(features[:, 16:20] @ f[16:20])
+        signed_dot = features[:, 16:20] @ f[16:20]
+        dot = np.abs(signed_dot)
         angle = 2.0 * np.arccos(np.minimum(dot, 1.0))
         # acos loses digits near dot = 1 (angles below ~3 mrad): there take 4 atan2(|a - b|, |a + b|)
         near = np.flatnonzero(dot > 1.0 - 1e-6)
         if near.size:
-            qa = features[near, 16:20] * np.where(features[near, 16:20] @ f[16:20] < 0, -1.0, 1.0)[:, None]
+            qa = features[near, 16:20] * np.where(signed_dot[near] < 0, -1.0, 1.0)[:, None]
             angle[near] = 4.0 * np.arctan2(
                 np.linalg.norm(qa - f[16:20], axis=1), np.linalg.norm(qa + f[16:20], axis=1)
             )
@@ -132,20 +133,10 @@ class HandConfigSpace:
         """Configurations (n, 19) at fractions ``s`` (n,) of the way from ``q_a`` to ``q_b``."""
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
-        s = np.asarray(s, dtype=float).reshape(-1, 1)
-        out = q_a + s * (q_b - q_a)
-        qa, qb = np.array(quat_of_rotvec(*q_a[3:6])), np.array(quat_of_rotvec(*q_b[3:6]))
-        dot = float(qa @ qb)
-        if dot < 0:
-            qb, dot = -qb, -dot
-        if dot > 1.0 - 1e-12:
-            quat = qa + s * (qb - qa)
-        else:
-            omega = math.acos(min(dot, 1.0))
-            quat = (np.sin((1.0 - s) * omega) * qa + np.sin(s * omega) * qb) / math.sin(omega)
-        out[:, 3:6] = rotvec_from_quat(quat / np.linalg.norm(quat, axis=1, keepdims=True))
+        s = np.asarray(s, dtype=float).reshape(-1)
+        out = q_a + s[:, None] * (q_b - q_a)
+        out[:, 3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)
         return out
-
 
 def _rotvec(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
     """The rotation vector [rad], angle in [0, pi], of a quaternion (normalised here), in plain floats."""
