@@ -24,6 +24,14 @@ of the paper's graph. One constraint per link matters: the minimum over all link
 from one linearization to the next (the fingers in one wall, the thumb in the other), and its single
 gradient never pushes both out.
 
+Joint limits (``joint_limits``, our addition): the Gaussian graph knows no joint limits, and the constraint
+factors of a scene move whatever is cheapest in its metric. They bent the SAH's fingers backwards to clear a
+wall, the means up to 27 deg beyond the limits; the sampler clips each draw to the limits, so every draw of
+such a joint landed on the limit, the finger flexed back into the wall (ham_arc). With the limits, each joint
+``i`` has two more components ``J_i - lo_i`` and ``hi_i - J_i`` [rad], handled like the others (activation
+``joint_limit_activation_deg``, clearance ``joint_limit_margin_deg``, ``R_t = joint_limit_std_deg^2``); being
+linear in ``J_t``, their linearization is exact.
+
 Conditioning on O (the marginals P(X_t | O = mu_o)): Gaussian conditioning deletes O's rows and columns from
 the information matrix, which is the Schur complement ``Sigma_x|o = Sigma_xx - Sigma_xo Sigma_oo^-1 Sigma_ox``
 of the joint covariance of ``(O, X)``. We compute it by building the graph with O held fixed at mu_o
@@ -59,6 +67,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -74,6 +83,7 @@ from retarget.lie import local, retract, se3_inverse
 from retarget.trajectory import GRASP_TYPES, Trajectory
 
 from .factors import (
+    N_JOINTS,
     ConstraintFn,
     ConstraintGradientFn,
     FingertipMap,
@@ -351,8 +361,9 @@ def build_graph(
         params: parameters (smoothness, constraint noise).
         cov_f1: (T, 19, 19) Sigma_r + Sigma_m (:func:`factor_covariances`).
         T_world_object: (4, 4) mu_o. cov_object: (6, 6) Sigma_o ``[omega, v]``.
-        linearizations: ``{t: (T_world_wrist0, joints0, phi0 (m,), grad (m, 19), r_t (m,))}`` for constrained
-            steps (scalars and (19,) for one constraint).
+        linearizations: ``{t: (T_world_wrist0, joints0, phi0 (m,), grad (m, 19), r_t (m,)[, R_std (m,)])}``
+            for constrained steps (scalars and (19,) for one constraint); without ``R_std`` every component
+            has ``params.constraint_std_mm``.
         fixed_object: hold O fixed at ``T_world_object`` (the graph of P(X | O = mu_o); no O variable, no
             prior, ``cov_object`` unused).
     """
@@ -382,7 +393,7 @@ def build_graph(
         if t + 1 < n:
             for f in smoothness_factors(key_w(t), key_w(t + 1), key_j(t), key_j(t + 1), stds):
                 graph.add(f)
-    for t, (T0, j0, phi0, grad, r_t) in (linearizations or {}).items():
+    for t, (T0, j0, phi0, grad, r_t, *std) in (linearizations or {}).items():
         for f in constraint_factors(
             key_c(t),
             key_w(t),
@@ -392,7 +403,7 @@ def build_graph(
             phi0,
             grad,
             r_t,
-            params.constraint_std_mm * 1e-3,
+            std[0] if std else params.constraint_std_mm * 1e-3,
             params.constraint_delta_variance,
         ):
             graph.add(f)
@@ -427,6 +438,7 @@ def solve(
     fingertip_map: FingertipMap | None = None,
     constraint_clearance_mm: float | Sequence[float] | None = None,
     constraint_gradient_fn: ConstraintGradientFn | None = None,
+    joint_limits: np.ndarray | None = None,
 ) -> VariationModel:
     """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
 
@@ -442,6 +454,9 @@ def solve(
         constraint_gradient_fn: ``(T_world_wrist, joints) -> (phi (m,), grad (m, 19))``, the same phi with
             its gradient (e.g. from the contact normals); default central differences of ``constraint_fn``
             (``params.gradient_step``), 2 x 19 more evaluations of phi per constrained step.
+        joint_limits: (13, 2) lower and upper joint limits [rad] (the SAH's: ``retarget.sah.JOINT_LIMITS``),
+            held by linear constraint factors (see the module docstring); None: none, and the means may
+            leave the limits.
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -464,19 +479,27 @@ def solve(
     clear_m = 1e-3 * np.asarray(clear_mm, dtype=float)
     if clear_m.ndim > 1 or not np.all(np.isfinite(clear_m)) or np.any(clear_m < 0):
         raise InputError(f"constraint_clearance_mm: expected finite numbers >= 0, found {clear_mm!r}")
+    limits = _JointLimits(joint_limits, params)
     active: dict[int, np.ndarray] = {}
     phi_tau: list[np.ndarray] = []
-    if constraint_fn is not None:
+    n_env = 0
+    if constraint_fn is not None or limits:
         T_world_wrist_tau = mu_o @ traj.T_object_wrist
         phi_tau = [
-            _constraint_values(constraint_fn, T_world_wrist_tau[t], traj.joints[t], t) for t in range(n)
+            _all_constraint_values(constraint_fn, limits, T_world_wrist_tau[t], traj.joints[t], t)
+            for t in range(n)
         ]
-        if clear_m.ndim == 1 and clear_m.shape != phi_tau[0].shape:
+        n_env = phi_tau[0].size - limits.size
+        if clear_m.ndim == 1 and clear_m.size != n_env:
             raise InputError(
-                f"constraint_clearance_mm: {clear_m.size} clearances for {phi_tau[0].size} "
-                "constraint components"
+                f"constraint_clearance_mm: {clear_m.size} clearances for {n_env} constraint components"
             )
-        _grow_active(active, phi_tau, act_m)
+    # per component: clearance (the least target), activation distance and the std of f_4t
+    clear_all = np.r_[np.broadcast_to(clear_m, (n_env,)), limits.margin]
+    act_all = np.r_[np.full(n_env, act_m), limits.activation]
+    std_all = np.r_[np.full(n_env, params.constraint_std_mm * 1e-3), limits.std]
+    if phi_tau:
+        _grow_active(active, phi_tau, act_all)
 
     values = initial_values(traj, mu_o, fixed_object=True)
     W_prev, J_prev = _means(values, n)
@@ -489,14 +512,13 @@ def solve(
     for iterations in range(1, (params.max_iterations if active else 1) + 1):
         lin = {}
         for t, mask in active.items():
-            if constraint_gradient_fn is None:
-                phi0, grad = constraint_gradient(constraint_fn, W_prev[t], J_prev[t], params.gradient_step)
-            else:
-                phi0, grad = _constraint_gradient_values(constraint_gradient_fn, W_prev[t], J_prev[t], t)
-            phi0, grad = np.atleast_1d(phi0)[mask], np.atleast_2d(grad)[mask]
-            clear_t = np.broadcast_to(clear_m, mask.shape)[mask]
-            r_t = np.clip(phi_tau[t][mask], clear_t, np.maximum(act_m, clear_t))
-            lin[t] = (W_prev[t], J_prev[t], phi0, grad, r_t)
+            phi0, grad = _all_constraint_gradients(
+                constraint_fn, constraint_gradient_fn, limits, W_prev[t], J_prev[t], t, params.gradient_step
+            )
+            phi0, grad = phi0[mask], grad[mask]
+            clear_t = clear_all[mask]
+            r_t = np.clip(phi_tau[t][mask], clear_t, np.maximum(act_all[mask], clear_t))
+            lin[t] = (W_prev[t], J_prev[t], phi0, grad, r_t, std_all[mask])
             if values.exists(key_c(t)):
                 values.erase(key_c(t))  # its dimension grows with the active set
             values.insert(key_c(t), phi0)
@@ -517,8 +539,10 @@ def solve(
             if move < params.mean_tolerance and not grew:
                 converged = True
                 break
-            phi_now = [_constraint_values(constraint_fn, W_prev[t], J_prev[t], t) for t in range(n)]
-            grew = _grow_active(active, phi_now, act_m)
+            phi_now = [
+                _all_constraint_values(constraint_fn, limits, W_prev[t], J_prev[t], t) for t in range(n)
+            ]
+            grew = _grow_active(active, phi_now, act_all)
     if active:  # the final solve without the trust region, at the last linearization point
         graph = build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True)
         values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
@@ -556,6 +580,72 @@ def _with_trust_region(
     return out
 
 
+class _JointLimits:
+    """The joint limits as constraint components: ``phi = [J - lo, hi - J]`` (26,) [rad], exactly linear.
+
+    Falsy when there are no limits (then ``size`` is 0 and the arrays are empty).
+    """
+
+    def __init__(self, joint_limits: np.ndarray | None, params: VariationParams):
+        if joint_limits is None:
+            self.lo = self.hi = np.empty(0)
+        else:
+            lim = require_shape("joint_limits", joint_limits, (N_JOINTS, 2))
+            lim = require_finite("joint_limits", lim)
+            if np.any(lim[:, 0] >= lim[:, 1]):
+                raise InputError(f"joint_limits: each lower limit must be below its upper: {lim.tolist()}")
+            self.lo, self.hi = lim[:, 0].copy(), lim[:, 1].copy()
+        self.size = 2 * self.lo.size
+        self.margin = np.full(self.size, math.radians(params.joint_limit_margin_deg))
+        self.activation = np.full(self.size, math.radians(params.joint_limit_activation_deg))
+        self.std = np.full(self.size, math.radians(params.joint_limit_std_deg))
+        eye = np.eye(self.lo.size)
+        zeros = np.zeros((self.lo.size, 6))
+        self.gradient = np.block([[zeros, eye], [zeros, -eye]]) if self.size else np.empty((0, 19))
+
+    def __bool__(self) -> bool:
+        return self.size > 0
+
+    def values(self, joints: np.ndarray) -> np.ndarray:
+        if not self:
+            return np.empty(0)
+        joints = np.asarray(joints, dtype=float)
+        return np.r_[joints - self.lo, self.hi - joints]
+
+
+def _all_constraint_values(
+    constraint_fn: ConstraintFn | None,
+    limits: _JointLimits,
+    T_world_wrist: np.ndarray,
+    joints: np.ndarray,
+    t: int,
+) -> np.ndarray:
+    """phi of the scene's constraint (if any) followed by the joint-limit components (if any)."""
+    if constraint_fn is None:
+        return limits.values(joints)
+    return np.r_[_constraint_values(constraint_fn, T_world_wrist, joints, t), limits.values(joints)]
+
+
+def _all_constraint_gradients(
+    constraint_fn: ConstraintFn | None,
+    gradient_fn: ConstraintGradientFn | None,
+    limits: _JointLimits,
+    T_world_wrist: np.ndarray,
+    joints: np.ndarray,
+    t: int,
+    step: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(phi (m,), grad (m, 19))`` of :func:`_all_constraint_values` at one step."""
+    if constraint_fn is None:
+        phi, grad = np.empty(0), np.empty((0, 19))
+    elif gradient_fn is None:
+        phi, grad = constraint_gradient(constraint_fn, T_world_wrist, joints, step)
+    else:
+        phi, grad = _constraint_gradient_values(gradient_fn, T_world_wrist, joints, t)
+    phi, grad = np.atleast_1d(phi), np.atleast_2d(grad).reshape(-1, 19)
+    return np.r_[phi, limits.values(joints)], np.vstack([grad, limits.gradient])
+
+
 def _constraint_values(constraint_fn: ConstraintFn, T_world_wrist: np.ndarray, joints: np.ndarray, t: int):
     phi = np.atleast_1d(np.asarray(constraint_fn(T_world_wrist, np.array(joints)), dtype=float))
     if phi.ndim != 1 or not np.all(np.isfinite(phi)):
@@ -578,11 +668,12 @@ def _constraint_gradient_values(
     return phi, grad
 
 
-def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation_m: float) -> bool:
-    """Add the components with ``phi < activation`` to ``active`` (step -> bool mask); True if any was new."""
+def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation: np.ndarray) -> bool:
+    """Add the components with ``phi < activation`` (one per component) to ``active`` (step -> bool mask);
+    True if any was new."""
     grew = False
     for t, values in enumerate(phi):
-        below = values < activation_m
+        below = values < activation
         old = active.get(t, np.zeros(len(values), dtype=bool))
         if np.any(below & ~old):
             active[t] = old | below

@@ -22,6 +22,7 @@ from inference.params import VariationParams
 from retarget.demonstration import Demonstration
 from retarget.lie import pose_from_q, q_from_pose
 from retarget.retargeting import RetargetConfig, RetargetResult, retarget_demonstration
+from retarget.sah import JOINT_LIMITS
 from retarget.trajectory import Trajectory
 
 from .scene import Scene
@@ -148,7 +149,8 @@ def retarget_in_scene(
 
 
 def learn_in_scene(traj: Trajectory, scene: Scene, params: VariationParams | None = None) -> VariationModel:
-    """The variation model of ``traj`` with the scene's object prior and signed-distance constraints.
+    """The variation model of ``traj`` with the scene's object prior, signed-distance constraints and the
+    SAH's joint limits.
 
     Each hand link has two constraints: its distance to the table and the obstacles, held at least
     ``params.clearance_mm`` away, and its distance to the grasped object, held at least
@@ -172,4 +174,5 @@ def learn_in_scene(traj: Trajectory, scene: Scene, params: VariationParams | Non
             constraint_fn=signed_distance_fn(world, True, object_range_m),
             constraint_gradient_fn=signed_distance_gradient_fn(world, True, object_range_m),
             constraint_clearance_mm=clearance_mm,
+            joint_limits=JOINT_LIMITS,
         )

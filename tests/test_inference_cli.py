@@ -3,8 +3,9 @@
 import numpy as np
 from test_inference_model import make_traj
 
-from inference import VariationModel
+from inference import VariationModel, solve
 from planning.cli import main
+from retarget.sah import JOINT_LIMITS
 
 
 def test_infer_writes_a_model(tmp_path, capsys):
@@ -14,8 +15,14 @@ def test_infer_writes_a_model(tmp_path, capsys):
     assert main(["infer", str(tmp_path / "t.traj.npz"), "-o", str(out)]) == 0
     assert "T = 6" in capsys.readouterr().out
     model = VariationModel.load(out)
-    assert model.num_steps == 6 and model.iterations == 1
+    assert model.num_steps == 6 and model.converged
     np.testing.assert_array_equal(model.source.joints, traj.joints)
+    # the CLI holds the SAH's joint limits: this synthetic tau_r leaves them by up to 24 deg, a model without
+    # the limits by 22 deg, the CLI's model by less than 5 deg (its f_1t pulls towards tau_r)
+    lo, hi = JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1]
+    beyond = lambda j: np.degrees(np.maximum(lo - j, j - hi).max())  # noqa: E731
+    assert beyond(traj.joints) > 20 and beyond(solve(traj).joints_mean) > 20
+    assert beyond(model.joints_mean) < 5
 
 
 def test_infer_refuses_bad_input_without_writing(tmp_path, capsys):

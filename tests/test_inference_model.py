@@ -427,3 +427,106 @@ def test_a_singular_factor_covariance_is_a_clear_error():
     with pytest.raises(InputError, match="cov_object"):
         solve(traj, params, cov_object=-np.eye(6))
     assert math.isfinite(solve(traj, params).solve_time_s)
+
+
+def _dense_joint_chain(traj, params, extra):
+    """Means and covariances (n, 13) and (n, 13, 13) of the joints' linear-Gaussian chain (block-diagonal
+    f_1t, smoothness S_t) with extra scalar priors ``extra[(t, i)] = [(value, variance), ...]`` on J_t,i."""
+    n = traj.num_steps
+    cov_f1 = factor_covariances(traj, params)
+    D = np.linalg.inv(np.diag(params.smoothness_stds()[6:] ** 2))
+    Lam, eta = np.zeros((13 * n, 13 * n)), np.zeros(13 * n)
+    for t in range(n):
+        P = np.linalg.inv(cov_f1[t][6:, 6:])
+        Lam[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] += P
+        eta[13 * t : 13 * t + 13] += P @ traj.joints[t]
+    for t in range(n - 1):
+        a, b = slice(13 * t, 13 * t + 13), slice(13 * t + 13, 13 * t + 26)
+        Lam[a, a] += D
+        Lam[b, b] += D
+        Lam[a, b] -= D
+        Lam[b, a] -= D
+    for (t, i), priors in extra.items():
+        for value, variance in priors:
+            Lam[13 * t + i, 13 * t + i] += 1.0 / variance
+            eta[13 * t + i] += value / variance
+    cov = np.linalg.inv(Lam)
+    blocks = np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
+    return (cov @ eta).reshape(n, 13), blocks
+
+
+def _limits_near_joint0(lo0):
+    """Joint 0's lower limit at ``lo0``, every other limit far away [rad]."""
+    limits = np.tile([-10.0, 10.0], (13, 1))
+    limits[0, 0] = lo0
+    return limits
+
+
+def test_joint_limit_factors_equal_the_dense_closed_form():
+    """Joint 0 runs 0 -> 0.1 rad with its lower limit at -0.02: the steps within the 5 deg activation get the
+    prior N(lo + r, R^2) on J_0 (through C = J_0 - lo and the delta factor of variance 1e-10), r the
+    demonstrated distance to the limit, at least the 2 deg margin (step 0: 1.15 deg, raised to 2).
+    Everything is linear: means and covariances equal the dense closed form."""
+    n, lo0 = 6, -0.02
+    traj = make_traj(n=n, coupled=False, seed=3)
+    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19), joint_limit_margin_deg=2.0)
+    model = solve(traj, params, joint_limits=_limits_near_joint0(lo0))
+    act, margin = math.radians(params.joint_limit_activation_deg), math.radians(params.joint_limit_margin_deg)
+    R2 = math.radians(params.joint_limit_std_deg) ** 2 + params.constraint_delta_variance
+    phi_tau = traj.joints[:, 0] - lo0
+    near = np.flatnonzero(phi_tau < act)
+    assert list(near) == [0, 1, 2, 3] and phi_tau[0] < margin < phi_tau[1]
+    extra = {(t, 0): [(lo0 + np.clip(phi_tau[t], margin, act), R2)] for t in near}
+    mean, cov = _dense_joint_chain(traj, params, extra)
+    np.testing.assert_array_equal(model.constrained, np.isin(np.arange(n), near))
+    assert model.converged
+    assert np.abs(model.joints_mean - mean).max() < REL_TOL_EXACT * np.abs(mean).max()
+    assert np.abs(model.cov[:, 6:, 6:] - cov).max() < REL_TOL_EXACT * np.abs(cov).max()
+    # step 0 is pushed out to the margin, within a fraction of R; the free model stays at the chain's mean
+    free_mean, _ = _dense_joint_chain(traj, params, {})
+    assert model.joints_mean[0, 0] - lo0 > free_mean[0, 0] - lo0 + 0.5 * (margin - phi_tau[0])
+
+
+def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit():
+    """A 'wall' that joint 0 can clear only by going 50 mrad past its lower limit (phi = 0.1 m/rad x
+    (lo + 0.2 - J_0), clearance 25 mm): without the limits the means leave them by tens of mrad, as the
+    scenes' link constraints bent the SAH's fingers backwards; with them each mean is the closed form's
+    compromise of the three linear priors, within a few mrad of the limit."""
+    n, lo0, slope = 6, -0.02, 0.1
+    traj = make_traj(n=n, coupled=False, seed=3)
+    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19))
+
+    def wall(T_world_wrist, joints):
+        return slope * (lo0 + 0.2 - joints[0])
+
+    kw = dict(constraint_fn=wall, constraint_clearance_mm=25.0)
+    bent = solve(traj, params, **kw)
+    held = solve(traj, params, joint_limits=_limits_near_joint0(lo0), **kw)
+    assert bent.joints_mean[:, 0].min() < lo0 - 0.03
+    # the closed form: the wall's prior on J_0 is N(lo + 0.2 - 0.025 / slope, (2 mm / slope)^2), the limit's
+    # N(lo + r, R^2) on the steps within its activation (all, once the wall has moved them)
+    act = math.radians(params.joint_limit_activation_deg)
+    R2 = math.radians(params.joint_limit_std_deg) ** 2 + params.constraint_delta_variance
+    wall_var = (params.constraint_std_mm * 1e-3) ** 2 / slope**2 + params.constraint_delta_variance / slope**2
+    phi_tau = traj.joints[:, 0] - lo0
+    extra = {
+        (t, 0): [(lo0 + 0.2 - 0.025 / slope, wall_var), (lo0 + np.clip(phi_tau[t], 0.0, act), R2)]
+        for t in range(n)
+    }
+    mean, _ = _dense_joint_chain(traj, params, extra)
+    assert held.converged and held.constrained.all()
+    assert np.abs(held.joints_mean - mean).max() < REL_TOL_EXACT * np.abs(mean).max()
+    assert held.joints_mean[:, 0].min() > lo0 - 0.005
+
+
+@pytest.mark.parametrize(
+    "limits, message",
+    [
+        (np.zeros((12, 2)), "joint_limits"),
+        (np.tile([0.5, -0.5], (13, 1)), "lower limit must be below"),
+        (np.tile([np.nan, 1.0], (13, 1)), "joint_limits"),
+    ],
+)
+def test_bad_joint_limits_are_refused(limits, message):
+    with pytest.raises(InputError, match=message):
+        solve(make_traj(n=3), joint_limits=limits)

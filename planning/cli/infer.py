@@ -1,9 +1,9 @@
 """``pbdgrasp infer TRAJ [--scene S] [--params P.yaml] -o MODEL.model.npz``: the variation model (paper V-VI).
 
-Without ``--scene`` the object prior is the trajectory's and there are no constraint factors. With it, the
-object prior is the scene's object pose and localization covariance, and the signed distance of the hand to
-the scene's table and obstacles (pybullet closest points) is the constraint phi of the linearized constraint
-factors (see :mod:`inference.model`).
+Without ``--scene`` the object prior is the trajectory's and the only constraint factors are the SAH's
+joint limits. With it, the object prior is the scene's object pose and localization covariance, and the
+signed distance of the hand to the scene's table, obstacles and object (pybullet closest points) is also
+a constraint phi of the linearized constraint factors (see :mod:`inference.model`).
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 
 from inference import VariationParams, solve
+from retarget.sah import JOINT_LIMITS
 from retarget.trajectory import Trajectory
 
 NAME = "infer"
@@ -35,7 +36,7 @@ def run(args) -> int:
 
         model = learn_in_scene(traj, load_scene(args.scene), params)
     else:
-        model = solve(traj, params)
+        model = solve(traj, params, joint_limits=JOINT_LIMITS)
     model.save(args.output)
     status = "converged" if model.converged else "NOT converged"
     print(
