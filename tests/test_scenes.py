@@ -123,3 +123,26 @@ def test_not_yaml(tmp_path):
     p.write_text("- a list\n")
     with pytest.raises(InputError, match="expected a mapping"):
         load_scene(p)
+
+
+def test_ham_arc_admits_the_ham_strategys_grasp_from_above():
+    """The narrow-passage scene must leave room for the grasp its strategy makes (the paper's learned planner
+    solved it): the hand-placed ham grasp from above (planning.bench.HAM_GRASP_Q, epsilon 0.17 on the bare
+    can) is collision-free between the walls, and closing it there still gives a valid grasp, its fingers
+    in the 40 mm slot. With the thumb-side wall 40 mm from the can (until 2026-12-01) it was 66 mm inside
+    that wall: every valid grasp of the ham strategy put the SAH's thumb module 31-40 mm into it."""
+    from planning.autograsp import HandCloser
+    from planning.bench import HAM_GRASP_Q
+    from planning.world import World
+
+    q = np.array(HAM_GRASP_Q)
+    with World("ham_arc") as w:
+        assert w.is_free(q)
+        walls = {o.label: o.position_m[1] for o in w.scene.obstacles}
+        res = HandCloser(w).close(q)
+        assert res.quality >= 0.05
+        # closed, the hand touches the can only; every link stays clear of the table and the walls
+        assert {c.other for c in w.hand_contacts(res.closed_q)} == {"ham"}
+        assert w.link_signed_distances(res.closed_q).min() > 0.005
+    # the fingers' slot stays 40 mm wide (can half-width 27.5 mm, wall half-thickness 10 mm)
+    assert walls["wall_right"] == pytest.approx(-(0.0275 + 0.040 + 0.010))

@@ -117,7 +117,8 @@ def test_penetration_depth_sums_the_deepest_point_of_each_pair(ham_arc):
 
 def test_obstacle_contact(ham_arc):
     w = ham_arc
-    q = q_down([0.0, 0.0775, 0.3])  # above the left wall, fingers into it
+    (wall,) = [o for o in w.scene.obstacles if o.label == "wall_left"]
+    q = q_down([0.0, wall.position_m[1], 0.3])  # above the left wall, fingers into it
     q[2] = 0.16 + 0.18
     assert not w.is_free(q)
     assert "wall_left" in {c.other for c in w.hand_contacts(q)}
