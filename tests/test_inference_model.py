@@ -91,37 +91,47 @@ def test_three_step_chain_of_unit_variances_has_the_hand_computed_marginals():
         np.testing.assert_allclose(marginals.marginalCovariance(key_j(t)), var * np.eye(13), atol=1e-12)
 
 
-def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chain():
-    """Block-diagonal covariances: the joints form a linear-Gaussian chain, solved densely with numpy."""
-    n = 8
-    traj = make_traj(n=n, coupled=False, seed=3)
-    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19))
-    model = solve(traj, params)
+def _dense_joint_chain(traj, params, extra):
+    """Means and covariances (n, 13) and (n, 13, 13) of the joints' linear-Gaussian chain (block-diagonal
+    f_1t, smoothness S_t) with extra scalar priors ``extra[(t, i)] = [(value, variance), ...]`` on J_t,i."""
+    n = traj.num_steps
     cov_f1 = factor_covariances(traj, params)
-    S_j = np.diag(params.smoothness_stds()[6:] ** 2)
-    Lam = np.zeros((13 * n, 13 * n))
-    eta = np.zeros(13 * n)
+    D = np.linalg.inv(np.diag(params.smoothness_stds()[6:] ** 2))
+    Lam, eta = np.zeros((13 * n, 13 * n)), np.zeros(13 * n)
     for t in range(n):
         P = np.linalg.inv(cov_f1[t][6:, 6:])
         Lam[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] += P
         eta[13 * t : 13 * t + 13] += P @ traj.joints[t]
-    D = np.linalg.inv(S_j)
     for t in range(n - 1):
         a, b = slice(13 * t, 13 * t + 13), slice(13 * t + 13, 13 * t + 26)
         Lam[a, a] += D
         Lam[b, b] += D
         Lam[a, b] -= D
         Lam[b, a] -= D
+    for (t, i), priors in extra.items():
+        for value, variance in priors:
+            Lam[13 * t + i, 13 * t + i] += 1.0 / variance
+            eta[13 * t + i] += value / variance
     cov = np.linalg.inv(Lam)
-    mean = cov @ eta
+    blocks = np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
+    return (cov @ eta).reshape(n, 13), blocks
+
+
+def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chain():
+    """Block-diagonal covariances: the joints form a linear-Gaussian chain, solved densely with numpy."""
+    n = 8
+    traj = make_traj(n=n, coupled=False, seed=3)
+    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19))
+    model = solve(traj, params)
+    mean, blocks = _dense_joint_chain(traj, params, {})
     worst = 0.0
     for t in range(n):
-        block = cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13]
+        block = blocks[t]
         worst = max(worst, np.abs(model.cov[t][6:, 6:] - block).max() / np.abs(block).max())
         # wrist and joints are independent when every covariance is block diagonal
         assert np.abs(model.cov[t][:6, 6:]).max() < 1e-12 * np.abs(model.cov[t]).max()
     assert worst < REL_TOL_EXACT, worst
-    assert np.abs(model.joints_mean - mean.reshape(n, 13)).max() < REL_TOL_EXACT * np.abs(mean).max()
+    assert np.abs(model.joints_mean - mean).max() < REL_TOL_EXACT * np.abs(mean).max()
 
 
 @pytest.mark.parametrize("coupled", [False, True])
@@ -427,32 +437,6 @@ def test_a_singular_factor_covariance_is_a_clear_error():
     with pytest.raises(InputError, match="cov_object"):
         solve(traj, params, cov_object=-np.eye(6))
     assert math.isfinite(solve(traj, params).solve_time_s)
-
-
-def _dense_joint_chain(traj, params, extra):
-    """Means and covariances (n, 13) and (n, 13, 13) of the joints' linear-Gaussian chain (block-diagonal
-    f_1t, smoothness S_t) with extra scalar priors ``extra[(t, i)] = [(value, variance), ...]`` on J_t,i."""
-    n = traj.num_steps
-    cov_f1 = factor_covariances(traj, params)
-    D = np.linalg.inv(np.diag(params.smoothness_stds()[6:] ** 2))
-    Lam, eta = np.zeros((13 * n, 13 * n)), np.zeros(13 * n)
-    for t in range(n):
-        P = np.linalg.inv(cov_f1[t][6:, 6:])
-        Lam[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] += P
-        eta[13 * t : 13 * t + 13] += P @ traj.joints[t]
-    for t in range(n - 1):
-        a, b = slice(13 * t, 13 * t + 13), slice(13 * t + 13, 13 * t + 26)
-        Lam[a, a] += D
-        Lam[b, b] += D
-        Lam[a, b] -= D
-        Lam[b, a] -= D
-    for (t, i), priors in extra.items():
-        for value, variance in priors:
-            Lam[13 * t + i, 13 * t + i] += 1.0 / variance
-            eta[13 * t + i] += value / variance
-    cov = np.linalg.inv(Lam)
-    blocks = np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
-    return (cov @ eta).reshape(n, 13), blocks
 
 
 def _limits_near_joint0(lo0):
