@@ -529,9 +529,13 @@ def solve(
         W_new, J_new = _means(values, n)
         if active:
             dW = local(W_prev, W_new)
-            move = max(float(np.abs(dW).max()), float(np.abs(J_new - J_prev).max()))
-            log.debug("relinearization %d: means moved %.3g, %d constraints", iterations, move,
-                      sum(int(m.sum()) for m in active.values()))  # fmt: skip
+            moves = np.abs(np.concatenate([dW, J_new - J_prev], axis=1))  # (T, 19) [omega, v, joints]
+            move = float(moves.max())
+            if log.isEnabledFor(logging.DEBUG):
+                t_max, i_max = np.unravel_index(int(np.argmax(moves)), moves.shape)
+                log.debug("relinearization %d: means moved %.3g (step %d, tangent coordinate %d), %d "
+                          "constraints", iterations, move, t_max, i_max,
+                          sum(int(m.sum()) for m in active.values()))  # fmt: skip
             # damped update of the linearization point (damped loopy belief propagation): the closest-point
             # distances change their witness points, and undamped relinearization oscillates between them
             a = params.relinearization_damping
