@@ -23,6 +23,7 @@ between processes). The coordinating process writes each finished trial to the S
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
 import hashlib
@@ -200,13 +201,36 @@ def float_kernels() -> str:
 
 
 def _source_digest(entries: Sequence[str]) -> str:
-    """SHA-256 of the Python sources a cached step runs (folders or files relative to the package root)."""
+    """SHA-256 of the Python sources a cached step runs (folders or files relative to the package root),
+    each by its code (:func:`_code_digest`): an edit of a docstring, a comment or the layout recomputes
+    nothing."""
     files: list[Path] = []
     for e in entries:
         p = _PACKAGE_ROOT / e
         files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
     files = [f for f in files if f.relative_to(_PACKAGE_ROOT).as_posix() not in UNCACHED_SOURCES]
-    return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_sha256_file(f)}" for f in files if f.is_file())
+    return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_code_digest(f)}" for f in files if f.is_file())
+
+
+def _code_digest(path: Path) -> str:
+    """SHA-256 of a Python file's syntax tree without docstrings (comments and layout are not in the tree);
+    of its bytes if it does not parse. The tree's dump may differ between Python versions, which then
+    recompute the cache once."""
+    try:
+        tree = ast.parse(path.read_bytes())
+    except (SyntaxError, ValueError):
+        return _sha256_file(path)
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (
+            isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+            and body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
+            node.body = body[1:] or [ast.Pass()]
+    return hashlib.sha256(ast.dump(tree).encode()).hexdigest()
 
 
 def _scene_files(scene) -> list[Path]:

@@ -316,3 +316,32 @@ def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, m
     before = table1._source_digest(table1.RETARGET_SOURCES)
     (tmp_path / "planning" / "world.py").write_text("x = 2\n")
     assert table1._source_digest(table1.RETARGET_SOURCES) != before
+
+
+def test_the_source_digest_follows_the_code_not_its_docstrings_or_comments(tmp_path, monkeypatch):
+    """A docstring, a comment or a re-wrapped line recomputes nothing (a docstring edit of
+    planning/strategy.py once re-ran every retargeting); any change of the code does, a string constant
+    that is not a docstring included."""
+    from planning import table1
+
+    src = tmp_path / "retarget" / "step.py"
+    src.parent.mkdir()
+    monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
+
+    def digest(text):
+        src.write_text(text)
+        return table1._source_digest(("retarget",))
+
+    base = digest('"""Module."""\n\n\ndef f(x):\n    """Doc."""\n    return x + 1  # one\n\n\nNAME = "a"\n')
+    same = [
+        '"""Another."""\n\n\ndef f(x):\n    """Other doc."""\n    return x + 1\n\n\nNAME = "a"\n',
+        'def f(x):\n    return (x\n            + 1)  # a comment\nNAME = "a"\n',
+    ]
+    changed = [
+        '"""Module."""\n\n\ndef f(x):\n    """Doc."""\n    return x + 2\n\n\nNAME = "a"\n',
+        '"""Module."""\n\n\ndef f(x):\n    """Doc."""\n    return x + 1\n\n\nNAME = "b"\n',
+        '"""Module."""\n\n\ndef f(y):\n    """Doc."""\n    return y + 1\n\n\nNAME = "a"\n',
+    ]
+    assert all(digest(t) == base for t in same)
+    assert len({digest(t) for t in changed} | {base}) == len(changed) + 1
+    assert digest("def f(:\n") != base  # a file that does not parse is hashed by its bytes
