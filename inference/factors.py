@@ -212,17 +212,15 @@ def constraint_factors(
     phi0,
     grad: np.ndarray,
     r_t,
-    R_std,
+    R_std: float,
     delta_variance: float,
 ) -> list:
-    """f_3t (linearized at ``(T_world_wrist0, joints0)``) and f_4t ``N(r_t, diag(R_std^2))`` on ``C_t``.
+    """f_3t (linearized at ``(T_world_wrist0, joints0)``) and f_4t ``N(r_t, R_std^2 I)`` on ``C_t``.
 
     Args:
         phi0: the constraint value(s) at the linearization point, scalar or (m,).
         grad: (19,) or (m, 19) gradient(s) of phi in the tangent ``[omega, v, joints]`` there.
         r_t: the target(s), scalar or (m,); ``C_t`` is an m-vector.
-        R_std: the std of f_4t, one for all components or (m,) (components in different units, e.g. a
-            signed distance in m and a joint's distance to its limit in rad).
     """
     W0 = gtsam.Pose3(np.asarray(T_world_wrist0, dtype=float))
     J0 = np.array(joints0, dtype=float)
@@ -230,13 +228,8 @@ def constraint_factors(
     G = np.atleast_2d(np.asarray(grad, dtype=float))
     r = np.atleast_1d(np.asarray(r_t, dtype=float))
     m = len(phi)
-    stds = np.asarray(R_std, dtype=float)
-    stds = np.full(m, float(stds)) if stds.ndim == 0 else stds
-    if G.shape != (m, 19) or r.shape != (m,) or stds.shape != (m,):
-        raise InputError(
-            f"constraint factors: phi0 {phi.shape}, grad {G.shape}, r_t {r.shape} and R_std "
-            f"{np.shape(R_std)} disagree"
-        )
+    if G.shape != (m, 19) or r.shape != (m,):
+        raise InputError(f"constraint factors: phi0 {phi.shape}, grad {G.shape} and r_t {r.shape} disagree")
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
         C = values.atVector(key_c)
@@ -250,7 +243,7 @@ def constraint_factors(
     delta = gtsam.noiseModel.Isotropic.Sigma(m, math.sqrt(delta_variance))
     return [
         gtsam.CustomFactor(delta, [key_c, key_w, key_j], error),
-        gtsam.PriorFactorVector(key_c, r, gtsam.noiseModel.Diagonal.Sigmas(stds)),
+        gtsam.PriorFactorVector(key_c, r, gtsam.noiseModel.Isotropic.Sigma(m, R_std)),
     ]
 
 

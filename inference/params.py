@@ -26,10 +26,11 @@ Every field has the paper's default (or a documented choice where the paper is s
     constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
     gradient_step: 1.0e-3                 # central-difference step of grad phi in the 19-D tangent [rad, m];
                                           # pybullet distances are noisy at ~1e-6 m: 1e-5 did not converge
-    # joint limits as linear constraint factors (with solve(..., joint_limits=...); ours, see model.py)
-    joint_limit_activation_deg: 5.0       # a joint this near a limit (at tau_r or on the way) is constrained
-    joint_limit_margin_deg: 0.0           # r_t = its distance to the limit at tau_r, at least this margin
-    joint_limit_std_deg: 0.5              # R_t of those constraints
+    # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
+    joint_limit_min_probability: 1.0e-4   # a joint whose marginal puts more beyond a limit gets a site
+    joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
+    joint_limit_max_iterations: 50        # EP updates on the final graph
+    joint_limit_tolerance: 1.0e-5         # stop when no joint's marginal mean or std moves more [rad]
     # relinearization loop (section VI) and the Gauss-Newton solve inside it
     max_iterations: 100                   # the damped loop converges linearly (means moving ~10 % less
                                           # per solve): ham converges in 62; at 20 still 3 mm a solve
@@ -88,9 +89,10 @@ class VariationParams:
     activation_distance_mm: float = 30.0
     constraint_delta_variance: float = 1e-10
     gradient_step: float = 1e-3
-    joint_limit_activation_deg: float = 5.0
-    joint_limit_margin_deg: float = 0.0
-    joint_limit_std_deg: float = 0.5
+    joint_limit_min_probability: float = 1e-4
+    joint_limit_damping: float = 0.5
+    joint_limit_max_iterations: int = 50
+    joint_limit_tolerance: float = 1e-5
     max_iterations: int = 100
     mean_tolerance: float = 1e-4
     relinearization_damping: float = 0.5
@@ -115,7 +117,7 @@ class VariationParams:
                     raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
                 continue
-            is_int = f.name in ("max_iterations", "gauss_newton_max_iterations")
+            is_int = f.name in ("max_iterations", "gauss_newton_max_iterations", "joint_limit_max_iterations")
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
             if is_int:
@@ -124,14 +126,11 @@ class VariationParams:
                 object.__setattr__(self, f.name, int(value))
                 continue
             value = float(value)
-            if f.name == "relinearization_damping" and not 0.0 < value <= 1.0:
+            if f.name in ("relinearization_damping", "joint_limit_damping") and not 0.0 < value <= 1.0:
                 raise InputError(f"{f.name}: expected a fraction in (0, 1], found {value!r}")
-            allow_zero = f.name in (
-                "joint_floor_std_deg",
-                "clearance_mm",
-                "object_clearance_mm",
-                "joint_limit_margin_deg",
-            )
+            if f.name == "joint_limit_min_probability" and not 0.0 < value < 1.0:
+                raise InputError(f"{f.name}: expected a probability in (0, 1), found {value!r}")
+            allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm", "object_clearance_mm")
             if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
                 raise InputError(
                     f"{f.name}: expected a finite number {'>=' if allow_zero else '>'} 0, found {value!r}"
