@@ -462,8 +462,8 @@ def solve(
             its gradient (e.g. from the contact normals); default central differences of ``constraint_fn``
             (``params.gradient_step``), 2 x 19 more evaluations of phi per constrained step.
         joint_limits: (13, 2) lower and upper joint limits [rad] (the SAH's: ``retarget.sah.JOINT_LIMITS``),
-            held by linear constraint factors (see the module docstring); None: none, and the means may
-            leave the limits.
+            held by expectation propagation (see the module docstring); None: none, and the means may leave
+            the limits.
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -719,8 +719,8 @@ def _constraint_gradient_values(
 
 
 def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation: np.ndarray) -> bool:
-    """Add the components with ``phi < activation`` (one per component) to ``active`` (step -> bool mask);
-    True if any was new."""
+    """Add the components with ``phi < activation`` (a distance [m]) to ``active`` (step -> bool mask); True
+    if any was new."""
     grew = False
     for t, values in enumerate(phi):
         below = values < activation
