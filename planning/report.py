@@ -3,7 +3,8 @@
 Our columns, from the stored trials (:mod:`planning.results_db`) of one run's rows, planners and trial
 numbers:
 
-* Quality: the best phi_o over all learned trials (the paper: "the best quality of all trials");
+* Quality: the best phi_o over all learned trials (the paper: "the best quality of all trials"), three
+  decimals so that a row whose best attempt stayed under epsilon does not round up to it;
 * ETA [s]: mean time to the first valid grasp over the *successful* learned trials (root sampling
   included), with the learned success rate;
 * Nodes: mean tree size at success over the successful learned trials;
@@ -126,7 +127,8 @@ def _markdown(summaries: list[RowSummary], info: dict) -> str:
     if info.get("status"):
         lines += [f"**{info['status']}**", ""]
     lines += [
-        "Each cell: the paper's value \\| ours. Quality: best phi_o of the learned trials; "
+        "Each cell: the paper's value \\| ours. Quality: best phi_o of the learned trials (below epsilon "
+        "where none was valid); "
         "ETA: mean time to a valid grasp over the successful learned trials (learned success rate in "
         "brackets); Nodes: mean tree size at success; MSE: retargeting fingertip mean square error over "
         "the steps of tau_r; ETA_0: the baseline RRT's mean time over its successful trials (success rate "
@@ -139,7 +141,7 @@ def _markdown(summaries: list[RowSummary], info: dict) -> str:
         p = PAPER_TABLE1[s.row]
         p_mse = _f(p.mse_mm2, ".1f")
         lines.append(
-            f"| {p.label} | {p.quality:.2f} \\| {_f(s.quality, '.2f')} "
+            f"| {p.label} | {p.quality:.2f} \\| {_f(s.quality, '.3f')} "
             f"| {p.eta_s:g} \\| {_f(s.eta_s, '.2f')} ({_f(s.success, '.0%')}) "
             f"| {p.nodes} \\| {_f(s.nodes, '.0f')} "
             f"| {p_mse} \\| {_f(s.mse_mm2, '.1f')} "

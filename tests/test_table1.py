@@ -240,7 +240,7 @@ def test_summary_matches_hand_computed_values(tmp_path):
     )
     assert [f.name for f in files] == ["table1.md", "table1.csv", "table1_success.png"]
     md = (tmp_path / "table1.md").read_text()
-    ham = "| Ham | 0.25 \\| 0.30 | 1.3 \\| 2.00 (75%) | 774 \\| 200 | 42.2 \\| 49.0 "
+    ham = "| Ham | 0.25 \\| 0.300 | 1.3 \\| 2.00 (75%) | 774 \\| 200 | 42.2 \\| 49.0 "
     ham += "| 0% \\| 4.00 (50%) | 4 / 2 |"
     assert ham in md
     assert "| 6.1 \\| — (0%) | 502 \\| — | — \\| — | 0% \\| — | 1 / 0 |" in md
