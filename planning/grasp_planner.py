@@ -1,4 +1,4 @@
-"""A grasp-planning problem in one scene, and the three planners that solve it (paper VII-VIII).
+"""A grasp-planning problem in one scene, and the planners that solve it (paper VII-VIII).
 
 :class:`GraspPlanner` owns one pybullet :class:`~planning.world.World` (its own client), the collision
 checker, the hand closer (phi_o) and the learned strategies, and runs one planning query per call:
@@ -9,9 +9,13 @@ checker, the hand closer (phi_o) and the learned strategies, and runs one planni
 * ``baseline``: the paper's "simple RRT": the same tree code with single-step EXTEND (no CONNECT) and
   uniform samples, drawing its target from N(b_T, B_T) with probability ``goal_probability`` (0.1);
 * ``ompl``: OMPL's RRTConnect (:func:`~planning.ompl_peer.plan_ompl`) from the same roots, with a goal
-  region of N(b_T, B_T) draws whose quality reaches the threshold.
+  region of N(b_T, B_T) draws whose quality reaches the threshold;
+* ``bidirectional`` (not in the paper): ``learned`` with goal trees
+  (:attr:`~planning.rrt_connect.PlannerConfig.goal_trees`): a collision-free last-step sample whose
+  phi_o reaches the threshold but which the start forest did not reach roots a goal tree, and the forests
+  grow towards each other as in OMPL's RRTConnect.
 
-All three root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
+All of them root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
 and use the same goal test: phi_o >= ``quality_threshold`` (0.05). Ours (learned and baseline) runs it
 where an extension towards a goal sample ended, if within ``goal_radius`` of the sample; OMPL's goal
 region holds collision-free N(b_T, B_T) draws only.
@@ -46,7 +50,7 @@ __all__ = ["PLANNERS", "PlanningSettings", "GraspPlanner"]
 
 log = logging.getLogger(__name__)
 
-PLANNERS = ("learned", "baseline", "ompl")
+PLANNERS = ("learned", "baseline", "ompl", "bidirectional")  # append only: trial seeds use the index
 
 
 @dataclass(frozen=True)
@@ -205,7 +209,7 @@ class GraspPlanner:
                 quality_threshold=settings.quality_threshold,
             )
         else:
-            if settings.planner == "learned":
+            if settings.planner in ("learned", "bidirectional"):
                 mixture = MixtureSampler(self.models, lo, hi, settings.beta, JOINT_LIMITS)
 
                 def draw(n, r):
@@ -226,7 +230,8 @@ class GraspPlanner:
                 time_limit_s=settings.time_limit_s,
                 max_nodes=settings.max_nodes,
                 quality_threshold=settings.quality_threshold,
-                connect=settings.planner == "learned",
+                connect=settings.planner != "baseline",
+                goal_trees=settings.planner == "bidirectional",
                 goal_radius=settings.goal_radius,
                 record_tree=settings.record_tree,
             )

@@ -40,7 +40,8 @@ __all__ = ["RowSummary", "summarize", "write_report", "plot_success", "render_be
 log = logging.getLogger(__name__)
 
 PLANNER_STYLE = {"learned": ("tab:blue", "learned P(Y)", "-"), "baseline": ("tab:red", "baseline RRT", "--"),
-                 "ompl": ("tab:green", "OMPL RRTConnect", ":")}  # fmt: skip
+                 "ompl": ("tab:green", "OMPL RRTConnect", ":"),
+                 "bidirectional": ("tab:purple", "learned P(Y), goal trees", "-.")}  # fmt: skip
 
 
 def _style(planner: str) -> tuple[str, str, str]:

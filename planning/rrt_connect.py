@@ -15,6 +15,14 @@ node and extends towards ``y`` with the CONNECT heuristic (repeated unit steps u
 an edge is blocked). When an extension towards a goal sample added a node within ``goal_radius`` of it
 (the sample itself, or where an obstacle, usually the object, stopped the extension), phi_o is evaluated
 at that node; a quality ``>= quality_threshold`` ends the search with the path from its root.
+
+With ``goal_trees`` (not in the paper; Kuffner and LaValle's two-tree RRT-Connect, as OMPL's RRTConnect
+grows it) a goal sample that the extension did not reach is itself checked: if it is collision-free and
+its phi_o reaches the threshold, it becomes the root of a *goal tree*. While goal trees exist the
+iterations alternate: one forest (start or goal) extends towards ``y``, the other CONNECTs towards the
+node it added; a connection ends the search with the path from a start root through the meeting node to
+the valid grasp at a goal root. A single tree has to reach a grasp in a narrow slot from above, where
+every extension of its nearest node may be blocked; a goal tree grows out of the slot from the grasp.
 """
 
 from __future__ import annotations
@@ -46,6 +54,8 @@ class PlannerConfig:
             towards it stops at the surface, and closing the hand there is the grasp. The default, 3 units
             (3 cm, 15 deg of wrist or 30 deg of a joint with the hand space's defaults), skips extensions
             blocked far from their sample, where closing the hand cannot touch what the sample touched.
+        goal_trees: root goal trees at valid grasps that the start forest did not reach and grow both
+            (see the module docstring); ``False`` is the paper's single tree.
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q`` (N, d) nodes, ``tree_parent``
             (N,) parent index, -1 for the roots), e.g. for plotting; off by default (copies the arrays).
     """
@@ -56,6 +66,7 @@ class PlannerConfig:
     step: float = 1.0
     connect: bool = True
     goal_radius: float = 3.0
+    goal_trees: bool = False
     record_tree: bool = False
 
     def __post_init__(self):
@@ -121,6 +132,11 @@ class _Forest:
     def nearest(self, q: np.ndarray) -> int:
         return int(np.argmin(self.space.distance_to(self.f[: self.count], q)))
 
+    def root_of(self, i: int) -> int:
+        while self.parent[i] >= 0:
+            i = int(self.parent[i])
+        return i
+
     def path_to(self, i: int) -> np.ndarray:
         idx = []
         while i >= 0:
@@ -171,7 +187,7 @@ def rrt_connect(
             success=success,
             message=message,
             eta_s=time.perf_counter() - t0,
-            nodes=forest.count,
+            nodes=forest.count + (goal.count if goal is not None else 0),
             quality=float(stats["best"] if quality is None else quality),
             path=np.empty((0, roots.shape[1])) if path is None else path,
             grasp=stats["best_payload"] if payload is None else payload,
@@ -183,39 +199,80 @@ def rrt_connect(
             extra=_tree(forest) if config.record_tree else {},
         )
 
-    it = 0
-    while True:
-        if time.perf_counter() - t0 > config.time_limit_s:
-            return result(False, f"time limit of {config.time_limit_s:g} s reached", it=it)
-        if forest.count >= config.max_nodes:
-            return result(False, f"node limit of {config.max_nodes} reached", it=it)
-        it += 1
-        y, is_goal = sample_fn(rng)
-        i = forest.nearest(y)
+    def extend(f: _Forest, y: np.ndarray) -> tuple[int, bool, bool]:
+        """Steps from the node of ``f`` nearest to ``y`` towards it: (last node, added any, reached y)."""
+        i = f.nearest(y)
         reached = added = False
-        while forest.count < config.max_nodes:
-            q_near = forest.q[i]
+        while forest.count + (goal.count if goal else 0) < config.max_nodes:
+            q_near = f.q[i]
             d = space.distance(q_near, y)
             reached = d <= config.step
             q_new = y if reached else space.interpolate(q_near, y, config.step / d)
             if not edge_free(q_near, q_new):
                 reached = False
                 break
-            if forest.count >= len(forest.q):
-                _grow(forest)
-            i = forest.add(q_new, i)
+            if f.count >= len(f.q):
+                _grow(f)
+            i = f.add(q_new, i)
             added = True
             if reached or not config.connect:
                 break
+        return i, added, reached
+
+    def score(q):
+        t = time.perf_counter()
+        quality, payload = quality_fn(q)
+        stats["t_q"] += time.perf_counter() - t
+        stats["evals"] += 1
+        if quality > stats["best"] or stats["best_payload"] is None:
+            stats["best"], stats["best_payload"] = float(quality), payload
+        return quality, payload
+
+    def joined(i: int, j: int, it: int) -> PlanResult:
+        """Start node ``i`` and goal node ``j`` are the same configuration: the path through them."""
+        path = np.concatenate([forest.path_to(i), goal.path_to(j)[::-1][1:]])
+        quality, payload = goal_grasps[goal.root_of(j)]
+        return result(True, "valid grasp found (goal tree joined)", path, quality, payload, it)
+
+    goal: _Forest | None = None  # goal trees, rooted at valid grasps (config.goal_trees)
+    goal_grasps: dict[int, tuple[float, Any]] = {}  # goal root index -> (quality, payload)
+    it = 0
+    while True:
+        if time.perf_counter() - t0 > config.time_limit_s:
+            return result(False, f"time limit of {config.time_limit_s:g} s reached", it=it)
+        if forest.count + (goal.count if goal else 0) >= config.max_nodes:
+            return result(False, f"node limit of {config.max_nodes} reached", it=it)
+        it += 1
+        y, is_goal = sample_fn(rng)
+        if goal is not None and it % 2 == 0:
+            # the goal trees extend towards y, the start forest CONNECTs towards what they added
+            j, added, _ = extend(goal, y)
+            if added:
+                i, _, met = extend(forest, goal.q[j])
+                if met:
+                    return joined(i, j, it)
+            continue
+        i, added, reached = extend(forest, y)
         if is_goal and added and (reached or space.distance(forest.q[i], y) <= config.goal_radius):
-            t = time.perf_counter()
-            quality, payload = quality_fn(forest.q[i])
-            stats["t_q"] += time.perf_counter() - t
-            stats["evals"] += 1
-            if quality > stats["best"] or stats["best_payload"] is None:
-                stats["best"], stats["best_payload"] = float(quality), payload
+            quality, payload = score(forest.q[i])
             if quality >= config.quality_threshold:
                 return result(True, "valid grasp found", forest.path_to(i), quality, payload, it)
+        new_root = False
+        if config.goal_trees and is_goal and not reached and edge_free(y, y):
+            quality, payload = score(y)
+            if quality >= config.quality_threshold:  # a valid grasp the start forest did not reach
+                if goal is None:
+                    goal = _Forest(space, y[None, :], min(config.max_nodes, 4096))
+                    goal_grasps[0] = (quality, payload)
+                else:
+                    if goal.count >= len(goal.q):
+                        _grow(goal)
+                    goal_grasps[goal.add(y, -1)] = (quality, payload)
+                new_root = True
+        if goal is not None and (added or new_root):
+            j, _, met = extend(goal, forest.q[i])
+            if met:
+                return joined(i, j, it)
 
 
 def _tree(forest: _Forest) -> dict:

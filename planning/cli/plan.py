@@ -28,7 +28,12 @@ def add_arguments(p) -> None:
         metavar="M.model.npz",
         help="a learned strategy (repeat to superimpose several)",
     )
-    p.add_argument("--planner", choices=("learned", "baseline", "ompl"), default="learned")
+    p.add_argument(
+        "--planner",
+        choices=("learned", "baseline", "ompl", "bidirectional"),
+        default="learned",
+        help="bidirectional: learned with goal trees rooted at valid grasps (not in the paper)",
+    )
     p.add_argument("--trials", type=int, default=1)
     p.add_argument("--time-limit-s", type=float, default=10.0)
     p.add_argument("--beta", type=float, default=0.05, help="probability of a uniform sample (learned)")
