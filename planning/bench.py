@@ -422,7 +422,7 @@ def _planner_row(results) -> dict:
 
 
 def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
-    """Success, ETA, nodes, checks and time shares of the three planners on :data:`PLANNING_SCENES`.
+    """Success, ETA, nodes, checks and time shares of each planner of ``PLANNERS`` on ``PLANNING_SCENES``.
 
     Trial ``i`` of every planner uses the same spawned seed, so the planners start from the same roots.
     """
@@ -537,13 +537,13 @@ def format_table(r: dict) -> str:
     lines += [
         "",
         "planning (per scene and planner; shares of planning time: pybullet collision / quality / overhead)",
-        f"  {'scene':<19} {'planner':<9} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
+        f"  {'scene':<19} {'planner':<13} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
         f"{'coll.':>6} {'qual.':>6} {'ours':>6}",
     ]
     for scene, s in r["planning"].items():
         for name, p in s["planners"].items():
             lines.append(
-                f"  {scene:<19} {name:<9} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
+                f"  {scene:<19} {name:<13} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
                 f"{p['median_nodes']:>7.0f} {p['median_collision_checks']:>8.0f} "
                 f"{_f(p['share_collision'], '.0%'):>6} {_f(p['share_quality'], '.0%'):>6} "
                 f"{_f(p['share_overhead'], '.0%'):>6}"

@@ -4,7 +4,7 @@ Our columns, from the stored trials (:mod:`planning.results_db`) of one run's ro
 numbers:
 
 * Quality: the best phi_o over all learned trials (the paper: "the best quality of all trials"), three
-  decimals so that a row whose best attempt stayed under epsilon does not round up to it;
+  decimals rounded down, so that a row whose best attempt stayed under epsilon does not print as it;
 * ETA [s]: mean time to the first valid grasp over the *successful* learned trials (root sampling
   included), with the learned success rate;
 * Nodes: mean tree size at success over the successful learned trials;
@@ -115,6 +115,13 @@ def _f(x: float | None, fmt: str) -> str:
     return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
 
 
+def _q(x: float | None) -> str:
+    """A quality to 3 decimals, rounded down: a value under epsilon never prints as epsilon."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "—"
+    return f"{math.floor(x * 1000 + 1e-9) / 1000:.3f}"
+
+
 def _eta0(eta: float | None, rate: float) -> str:
     if rate is None or (isinstance(rate, float) and math.isnan(rate)):
         return "—"
@@ -123,7 +130,39 @@ def _eta0(eta: float | None, rate: float) -> str:
     return f"{_f(eta, '.2f')} ({rate:.0%})"
 
 
-def _markdown(summaries: list[RowSummary], info: dict) -> str:
+def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
+    """Markdown lines for the planners of the database beyond the paper's two (OMPL, goal trees)."""
+    others = sorted({r.planner for r in records} - {"learned", "baseline"})
+    if not others:
+        return []
+    lines = [
+        "## Other planners",
+        "",
+        "Not in the paper's table; the same rows, strategies, roots, time limit and goal test (goal trees: "
+        "also a valid last-step sample the tree did not reach, joined by a second tree). Per cell: "
+        "success rate (trials), mean ETA over the successful trials (s), best phi_o.",
+        "",
+        "| Row | " + " | ".join(_style(p)[1] for p in others) + " |",
+        "|---|" + "---|" * len(others),
+    ]
+    for row in rows:
+        label = PAPER_TABLE1[row].label if row in PAPER_TABLE1 else row
+        cells = []
+        for p in others:
+            rec = [r for r in records if r.row == row and r.planner == p]
+            if not rec:
+                cells.append("—")
+                continue
+            ok = [r for r in rec if r.success]
+            cells.append(
+                f"{len(ok) / len(rec):.0%} ({len(rec)}), {_f(_mean([r.eta_s for r in ok]), '.2f')}, "
+                f"{_q(max(r.quality for r in rec))}"
+            )
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
+def _markdown(summaries: list[RowSummary], info: dict, extra: Sequence[str] = ()) -> str:
     lines = [f"# Table I: {info.get('title', 'reproduction')}", ""]
     if info.get("status"):
         lines += [f"**{info['status']}**", ""]
@@ -142,14 +181,15 @@ def _markdown(summaries: list[RowSummary], info: dict) -> str:
         p = PAPER_TABLE1[s.row]
         p_mse = _f(p.mse_mm2, ".1f")
         lines.append(
-            f"| {p.label} | {p.quality:.2f} \\| {_f(s.quality, '.3f')} "
+            f"| {p.label} | {p.quality:.2f} \\| {_q(s.quality)} "
             f"| {p.eta_s:g} \\| {_f(s.eta_s, '.2f')} ({_f(s.success, '.0%')}) "
             f"| {p.nodes} \\| {_f(s.nodes, '.0f')} "
             f"| {p_mse} \\| {_f(s.mse_mm2, '.1f')} "
             f"| {_eta0(p.eta0_s, p.eta0_success)} \\| {_eta0(s.eta0_s, s.success0)} "
             f"| {s.trials} / {s.trials0} |"
         )
-    lines += ["", "## Settings", ""]
+    lines += [""] + list(extra)
+    lines += ["## Settings", ""]
     for k, v in info.get("settings", {}).items():
         lines.append(f"- {k}: {v}")
     lines += ["", "## Run", ""]
@@ -159,7 +199,7 @@ def _markdown(summaries: list[RowSummary], info: dict) -> str:
         "",
         "## Figures",
         "",
-        "- `table1_success.png`: fraction of the trials solved by time t (both planners, one panel per row).",
+        "- `table1_success.png`: fraction of the trials solved by time t (each planner, one panel per row).",
         "- `best_grasps.png`: the best learned grasp of each row (closed hand, pybullet render).",
         "",
     ]
@@ -337,7 +377,7 @@ def write_report(
     summaries = summarize(records, rows, mse_mm2)
     info = dict(info or {})
     info.setdefault("settings", {})
-    md = _markdown(summaries, info)
+    md = _markdown(summaries, info, _other_planners(records, rows))
     files = [
         atomic_write(out / "table1.md", lambda f: f.write(md.encode())),
         atomic_write(out / "table1.csv", lambda f: f.write(_csv(summaries).encode())),

@@ -159,3 +159,58 @@ def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops(
     end = res.path[-1]
     assert radius < np.linalg.norm(end - centre) <= radius + step  # stopped within a step of the surface
     assert all(free(a, b) for a, b in zip(res.path[:-1], res.path[1:], strict=True))
+
+
+def _in_l_pocket_problem():
+    """A solid block (y in [0.2, 0.5]) with an L-shaped pocket: a shaft down at x = 0.2, then a gallery
+    to x = 0.6 with the grasp at its far end. A start tree grows its nodes above the block next to the
+    grasp, and every extension from them towards it hits the block's top."""
+
+    def point_free(p):
+        x, y = p
+        if not (0 <= x <= 1 and 0 <= y <= 1):
+            return False
+        if not (0.05 <= x <= 0.95 and 0.2 <= y <= 0.5):
+            return True
+        return (0.18 <= x <= 0.22 and y >= 0.26) or (0.18 <= x <= 0.6 and 0.26 <= y <= 0.30)
+
+    def free(a, b):
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / RESOLUTION)) + 1)
+        return all(point_free(a + s * (b - a)) for s in np.linspace(0, 1, n))
+
+    goal = np.array([0.58, 0.28])
+
+    def sample(rng):
+        if rng.random() < 0.2:
+            return goal + rng.normal(scale=0.01, size=2), True
+        return rng.uniform(0, 1, size=2), False
+
+    def quality(q):
+        return max(0.0, 1.0 - np.linalg.norm(q - goal) / 0.05), None
+
+    return free, sample, quality, goal
+
+
+def test_goal_trees_join_a_valid_grasp_in_a_pocket_the_single_tree_struggles_with():
+    free, sample, quality, goal = _in_l_pocket_problem()
+    step = 0.02
+
+    def run(seed, goal_trees):
+        cfg = PlannerConfig(time_limit_s=60, max_nodes=4000, quality_threshold=0.5, goal_trees=goal_trees)
+        return rrt_connect(np.array([[0.5, 0.9]]), sample, free, quality, EuclideanSpace((step, step)),
+                           np.random.default_rng(seed), cfg)
+
+    single = [run(seed, False) for seed in range(5)]
+    both = [run(seed, True) for seed in range(5)]
+    assert sum(not r.success for r in single) >= 1  # the paper's single tree hits the node limit
+    for r in both:
+        assert r.success and r.message == "valid grasp found (goal tree joined)"
+        assert r.nodes <= 1000
+        path = r.path
+        np.testing.assert_array_equal(path[0], [0.5, 0.9])  # from the start root ...
+        assert quality(path[-1])[0] >= 0.5 and r.quality == quality(path[-1])[0]  # ... to the valid grasp
+        for a, b in zip(path[:-1], path[1:], strict=True):
+            assert free(a, b)  # independent re-check, finer than the planner's step
+            assert np.linalg.norm(b - a) <= step + 1e-12
+        assert any(0.18 <= x <= 0.22 and 0.3 < y < 0.5 for x, y in path)  # down the shaft
+    assert run(2, True).nodes == both[2].nodes  # the same seed, the same search

@@ -218,6 +218,9 @@ def test_summary_matches_hand_computed_values(tmp_path):
         _rec("ham", "baseline", 0, False, 10.0, 50, 0.0),
         _rec("ham", "baseline", 1, True, 4.0, 40, 0.06),
         _rec("ham_arc", "learned", 0, False, 10.0, 5, 0.0),
+        _rec("ham_arc", "bidirectional", 0, True, 1.5, 900, 0.12),
+        _rec("ham_arc", "bidirectional", 1, False, 10.0, 9000, 0.02),
+        _rec("ham_arc", "bidirectional", 2, True, 2.5, 700, 0.07),
     ]
     s_ham, s_arc = summarize(recs, ["ham", "ham_arc"], {"ham": 49.0, "ham_arc": 12.0})
     assert s_ham.trials == 4 and s_ham.trials0 == 2
@@ -244,6 +247,9 @@ def test_summary_matches_hand_computed_values(tmp_path):
     ham += "| 0% \\| 4.00 (50%) | 4 / 2 |"
     assert ham in md
     assert "| 6.1 \\| — (0%) | 502 \\| — | — \\| — | 0% \\| — | 1 / 0 |" in md
+    # planners beyond the paper's two get their own table: 2 of 3, mean ETA of the successes 2.0 s
+    assert "| Row | learned P(Y), goal trees |" in md
+    assert "| Ham (arc, obstacles) | 67% (3), 2.00, 0.120 |" in md and "| Ham | — |" in md
 
 
 def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
