@@ -1,4 +1,4 @@
-"""The three planners on the real ham scene, with a strategy built in code (tests/strategies.py).
+"""The planners on the real ham scene, with a strategy built in code (tests/strategies.py).
 
 Paths are checked independently of the planner: the first node is a collision-free root, every edge is
 re-checked at twice the planner's resolution in a separate world, and the grasp at the end is scored again
@@ -68,6 +68,11 @@ def test_same_seed_same_plan(planner):
         b.quality,
         b.quality_evaluations,
     )
+
+
+def test_goal_tree_planner_solves_the_ham_scene(planner, referee):
+    settings = PlanningSettings(planner="bidirectional", time_limit_s=120.0, max_nodes=20_000)
+    check_plan(planner.plan(np.random.default_rng(4), settings), referee)
 
 
 def test_baseline_and_ompl_paths_are_valid_when_found(planner, referee):
