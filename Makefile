@@ -45,7 +45,7 @@ test: setup
 	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 
 table1: setup
-	$(BIN)/pbdgrasp table1 --seed 0
+	$(BIN)/pbdgrasp table1 --seed 0 --planners learned,baseline,bidirectional
 
 bench: setup
 	$(BIN)/pbdgrasp bench
