@@ -501,6 +501,10 @@ def solve(
         _grow_active(active, phi_tau, act_m)
     sites = _JointLimitSites(joint_limits, n, params)
 
+    def graph_at(lin: dict) -> gtsam.NonlinearFactorGraph:
+        """P(X | O = mu_o) with the constraint factors linearized as in ``lin`` and the joint-limit sites."""
+        return sites.add_to(build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True))
+
     values = initial_values(traj, mu_o, fixed_object=True)
     W_prev, J_prev = _means(values, n)
     gn = gtsam.GaussNewtonParams()
@@ -524,7 +528,7 @@ def solve(
             if values.exists(key_c(t)):
                 values.erase(key_c(t))  # its dimension grows with the active set
             values.insert(key_c(t), phi0)
-        graph = sites.add_to(build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True))
+        graph = graph_at(lin)
         if active:
             graph = _with_trust_region(graph, lin, params.trust_stds())
         values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
@@ -550,14 +554,14 @@ def solve(
             phi_now = [_constraint_values(constraint_fn, W_prev[t], J_prev[t], t) for t in range(n)]
             grew = _grow_active(active, phi_now, act_m)
     if active:  # the final solve without the trust region, at the last linearization point
-        graph = sites.add_to(build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True))
+        graph = graph_at(lin)
         values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
     if not converged:
         log.warning("constraint relinearization did not converge in %d iterations", iterations)
     if sites:  # expectation propagation of the joint limits on the final graph, to its fixed point
         for _ in range(params.joint_limit_max_iterations):
             change = sites.update(graph, values)
-            graph = sites.add_to(build_graph(traj, params, cov_f1, mu_o, None, lin, fixed_object=True))
+            graph = graph_at(lin)
             values = gtsam.GaussNewtonOptimizer(graph, values, gn).optimize()
             if change < params.joint_limit_tolerance:
                 break
@@ -718,7 +722,7 @@ def _constraint_gradient_values(
     return phi, grad
 
 
-def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation: np.ndarray) -> bool:
+def _grow_active(active: dict[int, np.ndarray], phi: list[np.ndarray], activation: float) -> bool:
     """Add the components with ``phi < activation`` (a distance [m]) to ``active`` (step -> bool mask); True
     if any was new."""
     grew = False

@@ -182,12 +182,16 @@ def rrt_connect(
         stats["checks"] += 1
         return ok
 
+    def nodes() -> int:
+        """Nodes of the start forest and of the goal trees."""
+        return forest.count + (goal.count if goal is not None else 0)
+
     def result(success, message, path=None, quality=None, payload=None, it=0):
         return PlanResult(
             success=success,
             message=message,
             eta_s=time.perf_counter() - t0,
-            nodes=forest.count + (goal.count if goal is not None else 0),
+            nodes=nodes(),
             quality=float(stats["best"] if quality is None else quality),
             path=np.empty((0, roots.shape[1])) if path is None else path,
             grasp=stats["best_payload"] if payload is None else payload,
@@ -203,7 +207,7 @@ def rrt_connect(
         """Steps from the node of ``f`` nearest to ``y`` towards it: (last node, added any, reached y)."""
         i = f.nearest(y)
         reached = added = False
-        while forest.count + (goal.count if goal else 0) < config.max_nodes:
+        while nodes() < config.max_nodes:
             q_near = f.q[i]
             d = space.distance(q_near, y)
             reached = d <= config.step
@@ -240,7 +244,7 @@ def rrt_connect(
     while True:
         if time.perf_counter() - t0 > config.time_limit_s:
             return result(False, f"time limit of {config.time_limit_s:g} s reached", it=it)
-        if forest.count + (goal.count if goal else 0) >= config.max_nodes:
+        if nodes() >= config.max_nodes:
             return result(False, f"node limit of {config.max_nodes} reached", it=it)
         it += 1
         y, is_goal = sample_fn(rng)

@@ -94,6 +94,13 @@ def test_three_step_chain_of_unit_variances_has_the_hand_computed_marginals():
 def _dense_joint_chain(traj, params, extra):
     """Means and covariances (n, 13) and (n, 13, 13) of the joints' linear-Gaussian chain (block-diagonal
     f_1t, smoothness S_t) with extra scalar priors ``extra[(t, i)] = [(value, variance), ...]`` on J_t,i."""
+    mean, cov = _dense_joint_chain_full(traj, params, extra)
+    n = traj.num_steps
+    return mean, np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
+
+
+def _dense_joint_chain_full(traj, params, extra):
+    """:func:`_dense_joint_chain` with the whole (13 n, 13 n) covariance, index ``13 t + i`` for J_t,i."""
     n = traj.num_steps
     cov_f1 = factor_covariances(traj, params)
     D = np.linalg.inv(np.diag(params.smoothness_stds()[6:] ** 2))
@@ -113,8 +120,7 @@ def _dense_joint_chain(traj, params, extra):
             Lam[13 * t + i, 13 * t + i] += 1.0 / variance
             eta[13 * t + i] += value / variance
     cov = np.linalg.inv(Lam)
-    blocks = np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
-    return (cov @ eta).reshape(n, 13), blocks
+    return (cov @ eta).reshape(n, 13), cov
 
 
 def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chain():
@@ -499,8 +505,8 @@ def test_joint_limits_on_a_chain_agree_with_rejection_sampling():
     # independent of each other and of the wrist here)
     rng = np.random.default_rng(0)
     chain_cov = np.stack([free.cov[t][6, 6] for t in range(n)])
-    mean0, _ = _dense_joint_chain(traj, params, {})
-    cov6 = np.linalg.inv(_chain_information(n, params, 0))
+    mean0, cov_all = _dense_joint_chain_full(traj, params, {})
+    cov6 = cov_all[0::13, 0::13]  # joint 0 at every step
     draws = rng.multivariate_normal(mean0[:, 0], cov6, size=2_000_000)  # 15 % accepted
     kept = draws[np.all((draws >= lo0) & (draws <= 0.6), axis=1)][:200_000]
     assert len(kept) == 200_000
@@ -510,19 +516,6 @@ def test_joint_limits_on_a_chain_agree_with_rejection_sampling():
     assert np.all(np.abs(held.joints_mean[:, 0] - kept.mean(axis=0)) < 0.02 * sd)
     assert np.all(np.abs(np.sqrt([held.cov[t][6, 6] for t in range(n)]) - kept.std(axis=0)) < 0.05 * sd)
     assert np.all(held.joints_mean[:, 0] > lo0)
-
-
-def _chain_information(n, params, joint):
-    """(n, n) information matrix of one joint's chain: its f_1t variances and the smoothness S_t."""
-    var_f1 = params.sigma_m_std_config[6 + joint] ** 2
-    d = 1.0 / params.smoothness_stds()[6 + joint] ** 2
-    lam = np.diag(np.full(n, 1.0 / var_f1))
-    for t in range(n - 1):
-        lam[t, t] += d
-        lam[t + 1, t + 1] += d
-        lam[t, t + 1] -= d
-        lam[t + 1, t] -= d
-    return lam
 
 
 def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit():
