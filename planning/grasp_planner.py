@@ -17,8 +17,9 @@ checker, the hand closer (phi_o) and the learned strategies, and runs one planni
 
 All of them root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
 and use the same goal test: phi_o >= ``quality_threshold`` (0.05). Ours (learned and baseline) runs it
-where an extension towards a goal sample ended, if within ``goal_radius`` of the sample; OMPL's goal
-region holds collision-free N(b_T, B_T) draws only.
+where an extension towards a goal sample ended (the node it added last, or its nearest node when its
+first step was blocked), if within ``goal_radius`` of the sample; OMPL's goal region holds
+collision-free N(b_T, B_T) draws only.
 
 The strategies' marginals P(X_t | O) live in the object frame; their object prior P(O) is replaced by
 the scene's localization N(mu_o, Sigma_o), so a strategy learned on one object plans on another.
@@ -68,6 +69,8 @@ class PlanningSettings:
         sample_batch: draws of P(Y) per vectorized call.
         goal_radius: phi_o runs where an extension towards a goal sample ended within this distance of
             it (see :class:`~planning.rrt_connect.PlannerConfig`); the same for learned and baseline.
+        score_stalled: phi_o also runs at the nearest node of an extension towards a goal sample that was
+            blocked at its first step (once per node; see :class:`~planning.rrt_connect.PlannerConfig`).
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q``, ``tree_parent``; learned and
             baseline planners only), for plots.
     """
@@ -81,6 +84,7 @@ class PlanningSettings:
     quality_threshold: float = 0.05
     sample_batch: int = 256
     goal_radius: float = 3.0
+    score_stalled: bool = True
     record_tree: bool = False
 
     def __post_init__(self):
@@ -233,6 +237,7 @@ class GraspPlanner:
                 connect=settings.planner != "baseline",
                 goal_trees=settings.planner == "bidirectional",
                 goal_radius=settings.goal_radius,
+                score_stalled=settings.score_stalled,
                 record_tree=settings.record_tree,
             )
             result = rrt_connect(

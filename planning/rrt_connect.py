@@ -12,9 +12,13 @@ does), so a learned sampler is just another ``sample_fn``:
 
 The tree is a forest rooted at the start configurations. Each iteration draws ``y``, finds the nearest
 node and extends towards ``y`` with the CONNECT heuristic (repeated unit steps until ``y`` is reached or
-an edge is blocked). When an extension towards a goal sample added a node within ``goal_radius`` of it
-(the sample itself, or where an obstacle, usually the object, stopped the extension), phi_o is evaluated
-at that node; a quality ``>= quality_threshold`` ends the search with the path from its root.
+an edge is blocked). When an extension towards a goal sample ended within ``goal_radius`` of it (at the
+sample itself, or where an obstacle, usually the object, stopped it), phi_o is evaluated at the node where
+it ended; a quality ``>= quality_threshold`` ends the search with the path from its root. An extension
+whose first step is blocked ends at its nearest node, which is then scored if it never was
+(``score_stalled``): a tree that stops on the rim of a hole, above a grasp it cannot reach, closes the
+hand where it stands, which is how the paper's jam jar in a hole gets its grasp "a few cm above the
+demonstrated grasping position".
 
 With ``goal_trees`` (not in the paper; Kuffner and LaValle's two-tree RRT-Connect, as OMPL's RRTConnect
 grows it) a goal sample that the extension did not reach is itself checked: if it is collision-free and
@@ -54,6 +58,10 @@ class PlannerConfig:
             towards it stops at the surface, and closing the hand there is the grasp. The default, 3 units
             (3 cm, 15 deg of wrist or 30 deg of a joint with the hand space's defaults), skips extensions
             blocked far from their sample, where closing the hand cannot touch what the sample touched.
+        score_stalled: an extension towards a goal sample whose first step is blocked ends at its nearest
+            node; score that node (once per node) if it is within ``goal_radius`` of the sample.
+            ``False`` scores only nodes an extension added (the reading of the paper's "the RRT was
+            extended by a sample" before 2026-12-02: on the jam jar in a hole 1 of 10 queries against 8).
         goal_trees: root goal trees at valid grasps that the start forest did not reach and grow both
             (see the module docstring); ``False`` is the paper's single tree.
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q`` (N, d) nodes, ``tree_parent``
@@ -66,6 +74,7 @@ class PlannerConfig:
     step: float = 1.0
     connect: bool = True
     goal_radius: float = 3.0
+    score_stalled: bool = True
     goal_trees: bool = False
     record_tree: bool = False
 
@@ -240,6 +249,7 @@ def rrt_connect(
 
     goal: _Forest | None = None  # goal trees, rooted at valid grasps (config.goal_trees)
     goal_grasps: dict[int, tuple[float, Any]] = {}  # goal root index -> (quality, payload)
+    stalled_scored: set[int] = set()  # start-forest nodes scored where a stalled extension ended
     it = 0
     while True:
         if time.perf_counter() - t0 > config.time_limit_s:
@@ -257,7 +267,10 @@ def rrt_connect(
                     return joined(i, j, it)
             continue
         i, added, reached = extend(forest, y)
-        if is_goal and added and (reached or space.distance(forest.q[i], y) <= config.goal_radius):
+        fresh = added or (config.score_stalled and i not in stalled_scored)
+        if is_goal and fresh and (reached or space.distance(forest.q[i], y) <= config.goal_radius):
+            if not added:
+                stalled_scored.add(i)
             quality, payload = score(forest.q[i])
             if quality >= config.quality_threshold:
                 return result(True, "valid grasp found", forest.path_to(i), quality, payload, it)

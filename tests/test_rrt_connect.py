@@ -161,6 +161,37 @@ def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops(
     assert all(free(a, b) for a, b in zip(res.path[:-1], res.path[1:], strict=True))
 
 
+def test_an_extension_blocked_at_its_first_step_scores_its_nearest_node_once():
+    """A jar in a hole, in 2-D: the block (y < 0.5) has a hole whose grasp sample sits at its bottom, out of
+    reach. The only node is a root on the rim straight above it; every extension towards the sample is
+    blocked at its first step. Closing the hand on the rim is the grasp (quality 1 within 1 cm of the
+    rim): ``score_stalled`` scores the root, once, and the path is the root alone; without it no node is
+    ever scored."""
+    rim, sample = np.array([0.5, 0.505]), np.array([0.5, 0.48])
+
+    def free(a, b):  # the block y < 0.5; the hole is too narrow for the tree
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / RESOLUTION)) + 1)
+        return all((a + s * (b - a))[1] >= 0.5 for s in np.linspace(0, 1, n))
+
+    def at_rim(q):
+        return float(0.5 <= q[1] <= 0.51), None
+
+    def run(score_stalled, quality_fn=at_rim):
+        return rrt_connect(rim[None, :], lambda rng: (sample.copy(), True), free, quality_fn,
+                           EuclideanSpace((0.02, 0.02)), np.random.default_rng(0),
+                           PlannerConfig(time_limit_s=0.2, max_nodes=100, quality_threshold=0.5,
+                                         score_stalled=score_stalled))
+
+    res = run(True)
+    assert res.success and res.quality_evaluations == 1 and res.nodes == 1
+    np.testing.assert_array_equal(res.path, rim[None, :])
+    assert res.quality == 1.0
+    old = run(False)
+    assert not old.success and old.quality_evaluations == 0 and old.nodes == 1
+    never = run(True, lambda q: (0.0, None))  # a node is scored once, however often it stalls
+    assert not never.success and never.quality_evaluations == 1 and never.iterations > 10
+
+
 def _in_l_pocket_problem():
     """A solid block (y in [0.2, 0.5]) with an L-shaped pocket: a shaft down at x = 0.2, then a gallery
     to x = 0.6 with the grasp at its far end. A start tree grows its nodes above the block next to the
