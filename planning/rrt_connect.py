@@ -51,7 +51,7 @@ class PlannerConfig:
         quality_threshold: epsilon; a grasp with phi_o >= it is valid (the paper's 0.05).
         step: the longest edge added in one extension step, in configuration-space units.
         connect: extend with CONNECT (repeated steps); ``False`` gives single-step EXTEND.
-        goal_radius: phi_o is evaluated at the last node an extension towards a goal sample added when
+        goal_radius: phi_o is evaluated at the node where an extension towards a goal sample ended when
             that node is within this distance of the sample (configuration-space units; 0: only when the
             sample itself was reached). The paper evaluates phi_o whenever "the RRT was extended by a
             sample with k = T_s": a last-step sample often has a finger inside the object, the extension

@@ -96,8 +96,9 @@ def run(args) -> int:
             "beta": config.beta,
             "epsilon (quality threshold)": config.quality_threshold,
             "start nodes per trial": "100 collision-free draws of N(b_1, B_1)",
-            "goal test": f"phi_o where an extension towards a last-step sample ended within "
-            f"{config.settings('learned').goal_radius:g} steps of it",
+            "goal test": f"phi_o where an extension towards a last-step sample ended (its nearest node, "
+            f"scored once, if its first step was blocked) within {config.settings('learned').goal_radius:g} "
+            "steps of it",
             "retargeting": "default settings"
             if config.retarget_max_nfev is None
             else f"COARSE: at most {config.retarget_max_nfev} Rosenbrock evaluations per step",
