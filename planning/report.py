@@ -111,19 +111,21 @@ def summarize(
     return out
 
 
+def _missing(x: float | None) -> bool:
+    return x is None or (isinstance(x, float) and math.isnan(x))
+
+
 def _f(x: float | None, fmt: str) -> str:
-    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+    return "—" if _missing(x) else format(x, fmt)
 
 
 def _q(x: float | None) -> str:
     """A quality to 3 decimals, rounded down: a value under epsilon never prints as epsilon."""
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "—"
-    return f"{math.floor(x * 1000 + 1e-9) / 1000:.3f}"
+    return "—" if _missing(x) else f"{math.floor(x * 1000 + 1e-9) / 1000:.3f}"
 
 
 def _eta0(eta: float | None, rate: float) -> str:
-    if rate is None or (isinstance(rate, float) and math.isnan(rate)):
+    if _missing(rate):
         return "—"
     if rate == 0:
         return "0%"
@@ -216,7 +218,7 @@ def _csv(summaries: list[RowSummary]) -> str:
     )  # fmt: skip
 
     def num(x):
-        return "" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.6g}"
+        return "" if _missing(x) else f"{x:.6g}"
 
     for s in summaries:
         p = PAPER_TABLE1[s.row]

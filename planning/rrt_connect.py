@@ -131,6 +131,8 @@ class _Forest:
         self.count = n
 
     def add(self, q: np.ndarray, parent: int) -> int:
+        if self.count >= len(self.q):
+            self._grow()
         i = self.count
         self.q[i] = q
         self.f[i] = self.space.features(q)[0]
@@ -140,6 +142,18 @@ class _Forest:
 
     def nearest(self, q: np.ndarray) -> int:
         return int(np.argmin(self.space.distance_to(self.f[: self.count], q)))
+
+    def _grow(self) -> None:
+        """Doubles the arrays' capacity."""
+        cap, n = 2 * len(self.q), self.count
+        for name in ("q", "f"):
+            arr = getattr(self, name)
+            new = np.empty((cap, arr.shape[1]))
+            new[:n] = arr[:n]
+            setattr(self, name, new)
+        parent = np.full(cap, -1, dtype=np.int64)
+        parent[:n] = self.parent[:n]
+        self.parent = parent
 
     def root_of(self, i: int) -> int:
         while self.parent[i] >= 0:
@@ -224,8 +238,6 @@ def rrt_connect(
             if not edge_free(q_near, q_new):
                 reached = False
                 break
-            if f.count >= len(f.q):
-                _grow(f)
             i = f.add(q_new, i)
             added = True
             if reached or not config.connect:
@@ -282,8 +294,6 @@ def rrt_connect(
                     goal = _Forest(space, y[None, :], min(config.max_nodes, 4096))
                     goal_grasps[0] = (quality, payload)
                 else:
-                    if goal.count >= len(goal.q):
-                        _grow(goal)
                     goal_grasps[goal.add(y, -1)] = (quality, payload)
                 new_root = True
         if goal is not None and (added or new_root):
@@ -297,14 +307,3 @@ def _tree(forest: _Forest) -> dict:
     n = forest.count
     return {"tree_q": forest.q[:n].copy(), "tree_parent": forest.parent[:n].copy()}
 
-
-def _grow(forest: _Forest) -> None:
-    cap = 2 * len(forest.q)
-    for name in ("q", "f"):
-        arr = getattr(forest, name)
-        new = np.empty((cap, arr.shape[1]))
-        new[: forest.count] = arr[: forest.count]
-        setattr(forest, name, new)
-    parent = np.full(cap, -1, dtype=np.int64)
-    parent[: forest.count] = forest.parent[: forest.count]
-    forest.parent = parent

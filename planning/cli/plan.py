@@ -30,9 +30,9 @@ def add_arguments(p) -> None:
     )
     p.add_argument(
         "--planner",
-        choices=("learned", "baseline", "ompl", "bidirectional"),
         default="learned",
-        help="bidirectional: learned with goal trees rooted at valid grasps (not in the paper)",
+        help="learned (default), baseline, ompl or bidirectional (learned with goal trees rooted at valid "
+        "grasps, not in the paper); checked against planning.grasp_planner.PLANNERS",
     )
     p.add_argument("--trials", type=int, default=1)
     p.add_argument("--time-limit-s", type=float, default=10.0)
