@@ -146,3 +146,40 @@ def test_ham_arc_admits_the_ham_strategys_grasp_from_above():
         assert w.link_signed_distances(res.closed_q).min() > 0.005
     # the fingers' slot stays 40 mm wide (can half-width 27.5 mm, wall half-thickness 10 mm)
     assert walls["wall_right"] == pytest.approx(-(0.0275 + 0.040 + 0.010))
+
+
+#: A valid grasp of the chips strategy on the bare chips can (Table I's chips row, goal-tree trial 77,
+#: epsilon 0.055): the palm on the can's -x side, the fingers round its -y side, the thumb round its +y side.
+CHIPS_GRASP_Q = (-0.1538, 0.1508, 0.1205, 1.3668, 0.5797, 0.0997,
+                 1.5102, -0.1348, -0.0479, 0.7469, -0.1155, 0.1005, 0.096,
+                 -0.2031, 0.3673, 0.0698, -0.0982, 0.5113, 0.0857)  # fmt: skip
+
+
+def test_chips_between_cans_admits_the_chips_strategys_grasp(tmp_path):
+    """As for the ham arc: the three-cans scene must leave room for a grasp of its strategy. A valid chips
+    grasp is collision-free there and closes to a valid grasp touching the chips can only, its fingers in
+    the 45 mm gap to the right can. With the thumb-side can 45 mm away too (until 2026-12-02) the same
+    grasp is in collision: of the 216 valid grasps of Table I's chips row none fitted, the thumb's proximal
+    phalanx 18-43 mm inside that can."""
+    from planning.autograsp import HandCloser
+    from planning.world import World
+
+    q = np.array(CHIPS_GRASP_Q)
+    with World("chips_between_cans") as w:
+        assert w.is_free(q)
+        cans = {o.label: o.position_m[1] for o in w.scene.obstacles}
+        res = HandCloser(w).close(q)
+        assert res.quality >= 0.05
+        assert {c.other for c in w.hand_contacts(res.closed_q)} == {"chips"}
+        assert w.link_signed_distances(res.closed_q).min() > 0.0
+    # gaps between the cans (radius 37.5 mm): 45 mm on the fingers' side, 80 mm on the thumb's
+    assert cans["can_right"] == pytest.approx(-(0.0375 + 0.045 + 0.0375))
+    assert cans["can_left"] == pytest.approx(0.0375 + 0.080 + 0.0375)
+    d = yaml.safe_load(open(assets.scene_path("chips_between_cans")))
+    left = next(o for o in d["obstacles"] if o["label"] == "can_left")
+    left["position_m"][1] = 0.12
+    narrow = tmp_path / "narrow.yaml"
+    narrow.write_text(yaml.safe_dump(d))
+    with World(narrow) as w:
+        assert not w.is_free(q)
+        assert w.link_signed_distances(q).min() < -0.02  # the thumb, > 20 mm inside the can
