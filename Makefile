@@ -41,6 +41,7 @@ $(STAMP): pyproject.toml
 
 test: setup
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	MPLBACKEND=Agg $(BIN)/python -m pytest
 	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 

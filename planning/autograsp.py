@@ -173,8 +173,13 @@ class HandCloser:
             raise InputError(f"phi_o: q must be 19 finite numbers, found shape {q.shape}")
         if not self.world.is_free(q):
             self.world.set_q(q)
-            return GraspResult(0.0, q, in_collision=True, time_s=time.perf_counter() - t0,
-                               message="in collision before closing")
+            return GraspResult(
+                0.0,
+                q,
+                in_collision=True,
+                time_s=time.perf_counter() - t0,
+                message="in collision before closing",
+            )
         cfg = self.config
         moving = q[6 + self.closing] < self.upper - 1e-12
         steps = 0
@@ -198,12 +203,19 @@ class HandCloser:
             step = cfg.step_rad
         self.world.set_q(q)
         points, normals, links = self._object_contacts()
-        quality = epsilon_l1(points, normals, self.friction, self._com_world(), self.torque_radius_m,
-                             cfg.num_cone_edges) if len(points) else 0.0
+        quality = (
+            epsilon_l1(
+                points, normals, self.friction, self._com_world(), self.torque_radius_m, cfg.num_cone_edges
+            )
+            if len(points)
+            else 0.0
+        )
         msg = f"{len(points)} contacts on {len(set(links))} links; " + (
-            "force closure" if quality > 0 else "no force closure")
-        return GraspResult(quality, q, points, normals, tuple(links), False, steps,
-                           time.perf_counter() - t0, msg)
+            "force closure" if quality > 0 else "no force closure"
+        )
+        return GraspResult(
+            quality, q, points, normals, tuple(links), False, steps, time.perf_counter() - t0, msg
+        )
 
     def _link_distances(self) -> dict[int, float]:
         """The smallest signed distance [m] of each hand link to anything it has contact points with."""
@@ -226,8 +238,12 @@ class HandCloser:
                 by_link.setdefault(c[3], []).append((c[6], [-x for x in c[7]]))
         pts, nrm, links = [], [], []
         for link, items in sorted(by_link.items()):
-            p, n = _reduce_patch(np.array([i[0] for i in items]), np.array([i[1] for i in items]),
-                                 self.config.merge_radius_m, self.config.max_contacts_per_link)
+            p, n = _reduce_patch(
+                np.array([i[0] for i in items]),
+                np.array([i[1] for i in items]),
+                self.config.merge_radius_m,
+                self.config.max_contacts_per_link,
+            )
             pts.append(p)
             nrm.append(n)
             links += [self._link_names.get(link, str(link))] * len(p)

@@ -138,6 +138,7 @@ class HandConfigSpace:
         out[:, 3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)
         return out
 
+
 def _rotvec(x: float, y: float, z: float, w: float) -> tuple[float, float, float]:
     """The rotation vector [rad], angle in [0, pi], of a quaternion (normalised here), in plain floats."""
     norm = math.sqrt(x * x + y * y + z * z + w * w)

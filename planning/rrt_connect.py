@@ -306,4 +306,3 @@ def _tree(forest: _Forest) -> dict:
     """The tree's nodes and parents (copies) for ``PlanResult.extra``."""
     n = forest.count
     return {"tree_q": forest.q[:n].copy(), "tree_parent": forest.parent[:n].copy()}
-

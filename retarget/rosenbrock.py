@@ -167,6 +167,4 @@ def minimize_rosenbrock(
             message = f"stage budget max_stages={max_stages} spent"
             break
     log.debug("rosenbrock: %s (nfev=%d, nit=%d, fun=%.6g)", message, nfev, nit, fz)
-    return RosenbrockResult(
-        success=success, message=message, nfev=nfev, nit=nit, x=x0 + scale * z, fun=fz
-    )
+    return RosenbrockResult(success=success, message=message, nfev=nfev, nit=nit, x=x0 + scale * z, fun=fz)

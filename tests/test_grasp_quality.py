@@ -167,9 +167,10 @@ def test_any_rotation_stays_within_the_cone_polygon_bracket(seed, rot_seed):
 @given(seed=st.integers(0, 10_000), mu=st.floats(0.05, 1.5), extra=st.floats(0.0, 1.0))
 def test_does_not_decrease_with_friction(seed, mu, extra):
     p, n = _random_grasp(seed)
-    assert epsilon_l1(p, n, mu + extra, np.zeros(3), RADIUS_M) >= epsilon_l1(
-        p, n, mu, np.zeros(3), RADIUS_M
-    ) - EPS_ABS_TOL
+    assert (
+        epsilon_l1(p, n, mu + extra, np.zeros(3), RADIUS_M)
+        >= epsilon_l1(p, n, mu, np.zeros(3), RADIUS_M) - EPS_ABS_TOL
+    )
 
 
 def test_equator_and_tetrahedron_force_closure_values_are_scale_free():
@@ -194,8 +195,13 @@ def test_equator_and_tetrahedron_force_closure_values_are_scale_free():
 )
 def test_bad_input_raises(kwargs, match):
     p, n = equator_grasp()
-    args = {"contact_points": p, "contact_normals": n, "friction": MU, "center": np.zeros(3),
-            "torque_radius": RADIUS_M}
+    args = {
+        "contact_points": p,
+        "contact_normals": n,
+        "friction": MU,
+        "center": np.zeros(3),
+        "torque_radius": RADIUS_M,
+    }
     args.update(kwargs)
     with pytest.raises(InputError, match=match):
         epsilon_l1(**args)

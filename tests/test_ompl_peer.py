@@ -28,8 +28,17 @@ def goal_sample_fn(rng):
 def test_ompl_peer_finds_a_valid_path_through_the_hole():
     root = GOAL.copy()
     root[2] = 0.45
-    res = plan_ompl(root[None], goal_sample_fn, is_free, quality_fn, BOUNDS, LIMITS,
-                    np.random.default_rng(0), time_limit_s=10.0, quality_threshold=0.5)
+    res = plan_ompl(
+        root[None],
+        goal_sample_fn,
+        is_free,
+        quality_fn,
+        BOUNDS,
+        LIMITS,
+        np.random.default_rng(0),
+        time_limit_s=10.0,
+        quality_threshold=0.5,
+    )
     assert res.success, res.message
     assert res.quality >= 0.5
     np.testing.assert_allclose(res.path[0], root, atol=1e-6)

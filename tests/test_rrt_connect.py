@@ -40,8 +40,15 @@ def quality_fn(q):
 def plan(seed, **kw):
     cfg = PlannerConfig(time_limit_s=30, max_nodes=20000, quality_threshold=0.5, **kw)
     roots = np.array([[0.1, 0.1], [0.1, 0.5]])
-    return rrt_connect(roots, sample_fn, edge_free, quality_fn, EuclideanSpace((0.02, 0.02)),
-                       np.random.default_rng(seed), cfg)
+    return rrt_connect(
+        roots,
+        sample_fn,
+        edge_free,
+        quality_fn,
+        EuclideanSpace((0.02, 0.02)),
+        np.random.default_rng(seed),
+        cfg,
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -69,9 +76,15 @@ def test_same_seed_same_result():
 
 def test_node_limit_is_a_failure_result_not_none():
     res = plan(0, step=0.5)
-    res = rrt_connect(np.array([[0.1, 0.1]]), sample_fn, edge_free, lambda q: (0.0, None),
-                      EuclideanSpace((0.02, 0.02)), np.random.default_rng(0),
-                      PlannerConfig(time_limit_s=30, max_nodes=300))
+    res = rrt_connect(
+        np.array([[0.1, 0.1]]),
+        sample_fn,
+        edge_free,
+        lambda q: (0.0, None),
+        EuclideanSpace((0.02, 0.02)),
+        np.random.default_rng(0),
+        PlannerConfig(time_limit_s=30, max_nodes=300),
+    )
     assert not res.success and "node limit" in res.message and res.nodes == 300
     assert res.path.shape == (0, 2)
 
@@ -147,10 +160,15 @@ def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops(
         return max(0.0, 1.0 - (np.linalg.norm(q - centre) - radius) / 0.04), None
 
     def run(goal_radius):
-        return rrt_connect(np.array([[0.1, 0.1]]), goal_inside, free, touching, EuclideanSpace((step, step)),
-                           np.random.default_rng(3),
-                           PlannerConfig(time_limit_s=30, max_nodes=3000, quality_threshold=0.5,
-                                         goal_radius=goal_radius))
+        return rrt_connect(
+            np.array([[0.1, 0.1]]),
+            goal_inside,
+            free,
+            touching,
+            EuclideanSpace((step, step)),
+            np.random.default_rng(3),
+            PlannerConfig(time_limit_s=30, max_nodes=3000, quality_threshold=0.5, goal_radius=goal_radius),
+        )
 
     strict = run(0.0)
     assert not strict.success and strict.quality_evaluations == 0  # no sample can ever be reached
@@ -177,10 +195,17 @@ def test_an_extension_blocked_at_its_first_step_scores_its_nearest_node_once():
         return float(0.5 <= q[1] <= 0.51), None
 
     def run(score_stalled, quality_fn=at_rim):
-        return rrt_connect(rim[None, :], lambda rng: (sample.copy(), True), free, quality_fn,
-                           EuclideanSpace((0.02, 0.02)), np.random.default_rng(0),
-                           PlannerConfig(time_limit_s=0.2, max_nodes=100, quality_threshold=0.5,
-                                         score_stalled=score_stalled))
+        return rrt_connect(
+            rim[None, :],
+            lambda rng: (sample.copy(), True),
+            free,
+            quality_fn,
+            EuclideanSpace((0.02, 0.02)),
+            np.random.default_rng(0),
+            PlannerConfig(
+                time_limit_s=0.2, max_nodes=100, quality_threshold=0.5, score_stalled=score_stalled
+            ),
+        )
 
     res = run(True)
     assert res.success and res.quality_evaluations == 1 and res.nodes == 1
@@ -228,8 +253,15 @@ def test_goal_trees_join_a_valid_grasp_in_a_pocket_the_single_tree_struggles_wit
 
     def run(seed, goal_trees):
         cfg = PlannerConfig(time_limit_s=60, max_nodes=4000, quality_threshold=0.5, goal_trees=goal_trees)
-        return rrt_connect(np.array([[0.5, 0.9]]), sample, free, quality, EuclideanSpace((step, step)),
-                           np.random.default_rng(seed), cfg)
+        return rrt_connect(
+            np.array([[0.5, 0.9]]),
+            sample,
+            free,
+            quality,
+            EuclideanSpace((step, step)),
+            np.random.default_rng(seed),
+            cfg,
+        )
 
     single = [run(seed, False) for seed in range(5)]
     both = [run(seed, True) for seed in range(5)]

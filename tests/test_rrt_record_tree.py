@@ -31,7 +31,13 @@ def test_recorded_tree_holds_the_path_and_valid_edges():
 
 
 def test_failure_result_carries_the_tree_too():
-    res = rrt_connect(np.array([[0.1, 0.1]]), sample_fn, edge_free, lambda q: (0.0, None),
-                      EuclideanSpace((0.02, 0.02)), np.random.default_rng(0),
-                      PlannerConfig(time_limit_s=30, max_nodes=50, record_tree=True))
+    res = rrt_connect(
+        np.array([[0.1, 0.1]]),
+        sample_fn,
+        edge_free,
+        lambda q: (0.0, None),
+        EuclideanSpace((0.02, 0.02)),
+        np.random.default_rng(0),
+        PlannerConfig(time_limit_s=30, max_nodes=50, record_tree=True),
+    )
     assert not res.success and res.extra["tree_q"].shape == (50, 2)
