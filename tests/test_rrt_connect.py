@@ -74,17 +74,21 @@ def test_same_seed_same_result():
     assert (a.nodes, a.iterations, a.quality_evaluations) == (b.nodes, b.iterations, b.quality_evaluations)
 
 
-def test_node_limit_is_a_failure_result_not_none():
-    res = plan(0, step=0.5)
-    res = rrt_connect(
+def plan_without_grasp(config):
+    """The toy problem from one root with a quality that is never valid: the search runs to its limits."""
+    return rrt_connect(
         np.array([[0.1, 0.1]]),
         sample_fn,
         edge_free,
         lambda q: (0.0, None),
         EuclideanSpace((0.02, 0.02)),
         np.random.default_rng(0),
-        PlannerConfig(time_limit_s=30, max_nodes=300),
+        config,
     )
+
+
+def test_node_limit_is_a_failure_result_not_none():
+    res = plan_without_grasp(PlannerConfig(time_limit_s=30, max_nodes=300))
     assert not res.success and "node limit" in res.message and res.nodes == 300
     assert res.path.shape == (0, 2)
 

@@ -1,10 +1,9 @@
 """The optional tree record of RRT-CONNECT (``PlannerConfig(record_tree=True)``), used by the notebooks."""
 
 import numpy as np
-from test_rrt_connect import edge_free, plan, sample_fn
+from test_rrt_connect import edge_free, plan, plan_without_grasp
 
-from planning.config_space import EuclideanSpace
-from planning.rrt_connect import PlannerConfig, rrt_connect
+from planning.rrt_connect import PlannerConfig
 
 STEP_TOL = 1e-9  # edge length in scaled units may exceed the step by rounding only
 
@@ -31,13 +30,5 @@ def test_recorded_tree_holds_the_path_and_valid_edges():
 
 
 def test_failure_result_carries_the_tree_too():
-    res = rrt_connect(
-        np.array([[0.1, 0.1]]),
-        sample_fn,
-        edge_free,
-        lambda q: (0.0, None),
-        EuclideanSpace((0.02, 0.02)),
-        np.random.default_rng(0),
-        PlannerConfig(time_limit_s=30, max_nodes=50, record_tree=True),
-    )
+    res = plan_without_grasp(PlannerConfig(time_limit_s=30, max_nodes=50, record_tree=True))
     assert not res.success and res.extra["tree_q"].shape == (50, 2)

@@ -125,25 +125,31 @@ def test_not_yaml(tmp_path):
         load_scene(p)
 
 
+def assert_free_and_closes_on_the_object_only(world, q, clearance_m):
+    """``q`` is collision-free in ``world``; closing the hand there gives a valid grasp (epsilon >= 0.05)
+    that touches the target object only, every link more than ``clearance_m`` from the table and the
+    obstacles."""
+    from planning.autograsp import HandCloser
+
+    assert world.is_free(q)
+    res = HandCloser(world).close(q)
+    assert res.quality >= 0.05
+    assert {c.other for c in world.hand_contacts(res.closed_q)} == {world.scene.object.name}
+    assert world.link_signed_distances(res.closed_q).min() > clearance_m
+
+
 def test_ham_arc_admits_the_ham_strategys_grasp_from_above():
     """The narrow-passage scene must leave room for the grasp its strategy makes (the paper's learned planner
     solved it): the hand-placed ham grasp from above (planning.bench.HAM_GRASP_Q, epsilon 0.17 on the bare
     can) is collision-free between the walls, and closing it there still gives a valid grasp, its fingers
     in the 40 mm slot. With the thumb-side wall 40 mm from the can (until 2026-12-01) it was 66 mm inside
     that wall: every valid grasp of the ham strategy put the SAH's thumb module 31-40 mm into it."""
-    from planning.autograsp import HandCloser
     from planning.bench import HAM_GRASP_Q
     from planning.world import World
 
-    q = np.array(HAM_GRASP_Q)
     with World("ham_arc") as w:
-        assert w.is_free(q)
         walls = {o.label: o.position_m[1] for o in w.scene.obstacles}
-        res = HandCloser(w).close(q)
-        assert res.quality >= 0.05
-        # closed, the hand touches the can only; every link stays clear of the table and the walls
-        assert {c.other for c in w.hand_contacts(res.closed_q)} == {"ham"}
-        assert w.link_signed_distances(res.closed_q).min() > 0.005
+        assert_free_and_closes_on_the_object_only(w, np.array(HAM_GRASP_Q), clearance_m=0.005)
     # the fingers' slot stays 40 mm wide (can half-width 27.5 mm, wall half-thickness 10 mm)
     assert walls["wall_right"] == pytest.approx(-(0.0275 + 0.040 + 0.010))
 
@@ -161,17 +167,12 @@ def test_chips_between_cans_admits_the_chips_strategys_grasp(tmp_path):
     the 45 mm gap to the right can. With the thumb-side can 45 mm away too (until 2026-12-02) the same
     grasp is in collision: of the 216 valid grasps of Table I's chips row none fitted, the thumb's proximal
     phalanx 18-43 mm inside that can."""
-    from planning.autograsp import HandCloser
     from planning.world import World
 
     q = np.array(CHIPS_GRASP_Q)
     with World("chips_between_cans") as w:
-        assert w.is_free(q)
         cans = {o.label: o.position_m[1] for o in w.scene.obstacles}
-        res = HandCloser(w).close(q)
-        assert res.quality >= 0.05
-        assert {c.other for c in w.hand_contacts(res.closed_q)} == {"chips"}
-        assert w.link_signed_distances(res.closed_q).min() > 0.0
+        assert_free_and_closes_on_the_object_only(w, q, clearance_m=0.0)
     # gaps between the cans (radius 37.5 mm): 45 mm on the fingers' side, 80 mm on the thumb's
     assert cans["can_right"] == pytest.approx(-(0.0375 + 0.045 + 0.0375))
     assert cans["can_left"] == pytest.approx(0.0375 + 0.080 + 0.0375)
