@@ -12,6 +12,10 @@ numbers:
   demonstrated rows, as in the paper);
 * ETA_0 [s]: mean time over the successful baseline trials, with the baseline success rate.
 
+A second table gives every planner's valid grasps out of its trials with the 95 % Wilson score interval of
+the success rate (scipy's ``binomtest``), so that a difference between planners or runs can be read
+against the sampling error of 100 trials (68 of 100 is 58-76 %).
+
 Figures: ``table1_success.png`` (fraction of trials solved by time t, both planners, one panel per row,
 as OMPL's Planner Arena draws its progress plots) and ``best_grasps.png`` (pybullet renders of the best
 learned grasp of each row, closed hand, like the paper's Fig. 7 and 9).
@@ -29,13 +33,21 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import binomtest
 
 from assets.io import atomic_write
 
 from .paper import PAPER_TABLE1
 from .results_db import TrialRecord
 
-__all__ = ["RowSummary", "summarize", "write_report", "plot_success", "render_best_grasps"]
+__all__ = [
+    "RowSummary",
+    "summarize",
+    "success_interval",
+    "write_report",
+    "plot_success",
+    "render_best_grasps",
+]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +70,7 @@ class RowSummary:
         eta_s: mean time of the successful learned trials [s]. nodes: their mean tree size.
         mse_mm2: retargeting fingertip MSE [mm^2] (NaN for the rows the paper leaves blank).
         eta0_s: mean time of the successful baseline trials [s]. success0: baseline success rate.
+        success_ci, success0_ci: the 95 % Wilson intervals of the two success rates (NaNs without trials).
     """
 
     row: str
@@ -70,10 +83,20 @@ class RowSummary:
     trials0: int
     eta0_s: float
     success0: float
+    success_ci: tuple[float, float] = (math.nan, math.nan)
+    success0_ci: tuple[float, float] = (math.nan, math.nan)
 
 
 def _mean(xs) -> float:
     return float(np.mean(xs)) if len(xs) else math.nan
+
+
+def success_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The Wilson score interval of a success rate from ``successes`` of ``trials`` (NaNs for no trials)."""
+    if trials == 0:
+        return math.nan, math.nan
+    ci = binomtest(successes, trials).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)
 
 
 def summarize(
@@ -106,6 +129,8 @@ def summarize(
                 trials0=len(br),
                 eta0_s=_mean([r.eta_s for r in ok0]),
                 success0=len(ok0) / len(br) if br else math.nan,
+                success_ci=success_interval(len(ok), len(lr)),
+                success0_ci=success_interval(len(ok0), len(br)),
             )
         )
     return out
@@ -164,6 +189,33 @@ def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list
     return lines + [""]
 
 
+def _success_rates(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
+    """Markdown lines: every planner's valid grasps per row with the 95 % Wilson interval."""
+    present = {r.planner for r in records}
+    paper = ("learned", "baseline")
+    planners = [p for p in paper if p in present] + sorted(present - set(paper))
+    if not planners:
+        return []
+    lines = [
+        "## Success rates",
+        "",
+        "Valid grasps out of the trials, and the 95 % Wilson score interval of the success rate.",
+        "",
+        "| Row | " + " | ".join(_style(p)[1] for p in planners) + " |",
+        "|---|" + "---|" * len(planners),
+    ]
+    for row in rows:
+        label = PAPER_TABLE1[row].label if row in PAPER_TABLE1 else row
+        cells = []
+        for p in planners:
+            rec = [r for r in records if r.row == row and r.planner == p]
+            k = sum(r.success for r in rec)
+            lo, hi = success_interval(k, len(rec))
+            cells.append(f"{k} / {len(rec)} ({lo:.0%}-{hi:.0%})" if rec else "—")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def _markdown(summaries: list[RowSummary], info: dict, extra: Sequence[str] = ()) -> str:
     lines = [f"# Table I: {info.get('title', 'reproduction')}", ""]
     if info.get("status"):
@@ -214,7 +266,7 @@ def _csv(summaries: list[RowSummary]) -> str:
     w.writerow(
         ["row", "label", "paper_quality", "quality", "paper_eta_s", "eta_s", "success", "paper_nodes",
          "nodes", "paper_mse_mm2", "mse_mm2", "paper_eta0_s", "paper_success0", "eta0_s", "success0",
-         "trials", "trials0"]
+         "trials", "trials0", "success_ci_low", "success_ci_high", "success0_ci_low", "success0_ci_high"]
     )  # fmt: skip
 
     def num(x):
@@ -225,7 +277,8 @@ def _csv(summaries: list[RowSummary]) -> str:
         w.writerow(
             [s.row, p.label, num(p.quality), num(s.quality), num(p.eta_s), num(s.eta_s), num(s.success),
              p.nodes, num(s.nodes), num(p.mse_mm2), num(s.mse_mm2), num(p.eta0_s), num(p.eta0_success),
-             num(s.eta0_s), num(s.success0), s.trials, s.trials0]
+             num(s.eta0_s), num(s.success0), s.trials, s.trials0, *map(num, s.success_ci),
+             *map(num, s.success0_ci)]
         )  # fmt: skip
     return buf.getvalue()
 
@@ -379,7 +432,7 @@ def write_report(
     summaries = summarize(records, rows, mse_mm2)
     info = dict(info or {})
     info.setdefault("settings", {})
-    md = _markdown(summaries, info, _other_planners(records, rows))
+    md = _markdown(summaries, info, _success_rates(records, rows) + _other_planners(records, rows))
     files = [
         atomic_write(out / "table1.md", lambda f: f.write(md.encode())),
         atomic_write(out / "table1.csv", lambda f: f.write(_csv(summaries).encode())),

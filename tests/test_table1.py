@@ -15,7 +15,7 @@ import pytest
 
 from planning.cli import main
 from planning.paper import PAPER_TABLE1, ROWS
-from planning.report import best_trials, summarize, write_report
+from planning.report import best_trials, success_interval, summarize, write_report
 from planning.results_db import TrialRecord, load_trials
 from planning.table1 import Table1Config, parse_names, trial_rng
 
@@ -250,6 +250,38 @@ def test_summary_matches_hand_computed_values(tmp_path):
     # planners beyond the paper's two get their own table: 2 of 3, mean ETA of the successes 2.0 s
     assert "| Row | learned P(Y), goal trees |" in md
     assert "| Ham (arc, obstacles) | 67% (3), 2.00, 0.120 |" in md and "| Ham | — |" in md
+    # every planner's successes with the Wilson interval (3 of 4: 30-95 %, 1 of 2: 9-91 %, 2 of 3: 21-94 %)
+    assert "| Row | learned P(Y) | baseline RRT | learned P(Y), goal trees |" in md
+    assert "| Ham | 3 / 4 (30%-95%) | 1 / 2 (9%-91%) | — |" in md
+    assert "| Ham (arc, obstacles) | 0 / 1 (0%-79%) | — | 2 / 3 (21%-94%) |" in md
+    with open(tmp_path / "table1.csv") as f:
+        ham_csv = next(csv.DictReader(f))
+    assert float(ham_csv["success_ci_low"]) == pytest.approx(_wilson(3, 4)[0], abs=1e-5)
+    assert float(ham_csv["success0_ci_high"]) == pytest.approx(_wilson(1, 2)[1], abs=1e-5)
+
+
+def _wilson(k, n, z=1.959963984540054):
+    """The Wilson score interval written out (E. B. Wilson, JASA 1927), the reference of the report's."""
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return centre - half, centre + half
+
+
+@pytest.mark.parametrize("k, n", [(0, 100), (1, 100), (50, 100), (68, 100), (100, 100), (3, 7)])
+def test_success_interval_is_wilsons(k, n):
+    lo, hi = success_interval(k, n)
+    ref = _wilson(k, n)
+    assert lo == pytest.approx(max(ref[0], 0.0), abs=1e-12) and hi == pytest.approx(
+        min(ref[1], 1.0), abs=1e-12
+    )
+    assert lo <= k / n <= hi
+
+
+def test_success_interval_of_68_in_100_and_of_no_trials():
+    lo, hi = success_interval(68, 100)
+    assert (round(lo, 4), round(hi, 4)) == (0.5834, 0.7633)  # by hand: centre 0.6733, half-width 0.0900
+    assert all(math.isnan(x) for x in success_interval(0, 0))
 
 
 def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
