@@ -28,7 +28,7 @@ import io
 import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -54,6 +54,9 @@ log = logging.getLogger(__name__)
 PLANNER_STYLE = {"learned": ("tab:blue", "learned P(Y)", "-"), "baseline": ("tab:red", "baseline RRT", "--"),
                  "ompl": ("tab:green", "OMPL RRTConnect", ":"),
                  "bidirectional": ("tab:purple", "learned P(Y), goal trees", "-.")}  # fmt: skip
+
+
+_PAPER_PLANNERS = ("learned", "baseline")
 
 
 def _style(planner: str) -> tuple[str, str, str]:
@@ -157,49 +160,21 @@ def _eta0(eta: float | None, rate: float) -> str:
     return f"{_f(eta, '.2f')} ({rate:.0%})"
 
 
-def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
-    """Markdown lines for the planners of the database beyond the paper's two (OMPL, goal trees)."""
-    others = sorted({r.planner for r in records} - {"learned", "baseline"})
-    if not others:
-        return []
-    lines = [
-        "## Other planners",
-        "",
-        "Not in the paper's table; the same rows, strategies, roots, time limit and goal test (goal trees: "
-        "also a valid last-step sample the tree did not reach, joined by a second tree). Per cell: "
-        "success rate (trials), mean ETA over the successful trials (s), best phi_o.",
-        "",
-        "| Row | " + " | ".join(_style(p)[1] for p in others) + " |",
-        "|---|" + "---|" * len(others),
-    ]
-    for row in rows:
-        label = PAPER_TABLE1[row].label if row in PAPER_TABLE1 else row
-        cells = []
-        for p in others:
-            rec = [r for r in records if r.row == row and r.planner == p]
-            if not rec:
-                cells.append("—")
-                continue
-            ok = [r for r in rec if r.success]
-            cells.append(
-                f"{len(ok) / len(rec):.0%} ({len(rec)}), {_f(_mean([r.eta_s for r in ok]), '.2f')}, "
-                f"{_q(max(r.quality for r in rec))}"
-            )
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return lines + [""]
-
-
-def _success_rates(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
-    """Markdown lines: every planner's valid grasps per row with the 95 % Wilson interval."""
-    present = {r.planner for r in records}
-    paper = ("learned", "baseline")
-    planners = [p for p in paper if p in present] + sorted(present - set(paper))
+def _planner_table(
+    title: str,
+    intro: str,
+    records: Sequence[TrialRecord],
+    rows: Sequence[str],
+    planners: Sequence[str],
+    cell: Callable[[list[TrialRecord]], str],
+) -> list[str]:
+    """Markdown lines of a table with one column per planner: ``cell`` of a row's trials of a planner."""
     if not planners:
         return []
     lines = [
-        "## Success rates",
+        f"## {title}",
         "",
-        "Valid grasps out of the trials, and the 95 % Wilson score interval of the success rate.",
+        intro,
         "",
         "| Row | " + " | ".join(_style(p)[1] for p in planners) + " |",
         "|---|" + "---|" * len(planners),
@@ -209,11 +184,42 @@ def _success_rates(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[
         cells = []
         for p in planners:
             rec = [r for r in records if r.row == row and r.planner == p]
-            k = sum(r.success for r in rec)
-            lo, hi = success_interval(k, len(rec))
-            cells.append(f"{k} / {len(rec)} ({lo:.0%}-{hi:.0%})" if rec else "—")
+            cells.append(cell(rec) if rec else "—")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return lines + [""]
+
+
+def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
+    """Markdown lines for the planners of the database beyond the paper's two (OMPL, goal trees)."""
+
+    def cell(rec: list[TrialRecord]) -> str:
+        ok = [r for r in rec if r.success]
+        return (
+            f"{len(ok) / len(rec):.0%} ({len(rec)}), {_f(_mean([r.eta_s for r in ok]), '.2f')}, "
+            f"{_q(max(r.quality for r in rec))}"
+        )
+
+    others = sorted({r.planner for r in records} - set(_PAPER_PLANNERS))
+    intro = (
+        "Not in the paper's table; the same rows, strategies, roots, time limit and goal test (goal trees: "
+        "also a valid last-step sample the tree did not reach, joined by a second tree). Per cell: "
+        "success rate (trials), mean ETA over the successful trials (s), best phi_o."
+    )
+    return _planner_table("Other planners", intro, records, rows, others, cell)
+
+
+def _success_rates(records: Sequence[TrialRecord], rows: Sequence[str]) -> list[str]:
+    """Markdown lines: every planner's valid grasps per row with the 95 % Wilson interval."""
+
+    def cell(rec: list[TrialRecord]) -> str:
+        k = sum(r.success for r in rec)
+        lo, hi = success_interval(k, len(rec))
+        return f"{k} / {len(rec)} ({lo:.0%}-{hi:.0%})"
+
+    present = {r.planner for r in records}
+    planners = [p for p in _PAPER_PLANNERS if p in present] + sorted(present - set(_PAPER_PLANNERS))
+    intro = "Valid grasps out of the trials, and the 95 % Wilson score interval of the success rate."
+    return _planner_table("Success rates", intro, records, rows, planners, cell)
 
 
 def _markdown(summaries: list[RowSummary], info: dict, extra: Sequence[str] = ()) -> str:
