@@ -13,7 +13,11 @@ checker, the hand closer (phi_o) and the learned strategies, and runs one planni
 * ``bidirectional`` (not in the paper): ``learned`` with goal trees
   (:attr:`~planning.rrt_connect.PlannerConfig.goal_trees`): a collision-free last-step sample whose
   phi_o reaches the threshold but which the start forest did not reach roots a goal tree, and the forests
-  grow towards each other as in OMPL's RRTConnect.
+  grow towards each other as in OMPL's RRTConnect;
+* ``goal_region`` (not in the paper): ``bidirectional`` whose goal trees are also rooted at dedicated
+  draws of N(b_T, B_T) by OMPL's RRTConnect rule (up to :data:`GOAL_REGION_TRIES` draws per attempt, as
+  the ``ompl`` peer's goal region), so that it differs from ``ompl`` only in growing its trees towards
+  P(Y) instead of uniform samples: the paper's sampler, measured with the library planner's goal handling.
 
 All of them root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
 and use the same goal test: phi_o >= ``quality_threshold`` (0.05). Ours (learned and baseline) runs it
@@ -47,11 +51,13 @@ from .rrt_connect import PlannerConfig, PlanResult, rrt_connect
 from .scene import Scene, load_scene
 from .world import World
 
-__all__ = ["PLANNERS", "PlanningSettings", "GraspPlanner"]
+__all__ = ["GOAL_REGION_TRIES", "PLANNERS", "PlanningSettings", "GraspPlanner"]
 
 log = logging.getLogger(__name__)
 
-PLANNERS = ("learned", "baseline", "ompl", "bidirectional")  # append only: trial seeds use the index
+# append only: trial seeds use the index
+PLANNERS = ("learned", "baseline", "ompl", "bidirectional", "goal_region")
+GOAL_REGION_TRIES = 20  # draws of N(b_T, B_T) per goal-root attempt (goal_region; the ompl peer's goal_tries)
 
 
 @dataclass(frozen=True)
@@ -213,7 +219,7 @@ class GraspPlanner:
                 quality_threshold=settings.quality_threshold,
             )
         else:
-            if settings.planner in ("learned", "bidirectional"):
+            if settings.planner in ("learned", "bidirectional", "goal_region"):
                 mixture = MixtureSampler(self.models, lo, hi, settings.beta, JOINT_LIMITS)
 
                 def draw(n, r):
@@ -235,7 +241,8 @@ class GraspPlanner:
                 max_nodes=settings.max_nodes,
                 quality_threshold=settings.quality_threshold,
                 connect=settings.planner != "baseline",
-                goal_trees=settings.planner == "bidirectional",
+                goal_trees=settings.planner in ("bidirectional", "goal_region"),
+                goal_region_tries=GOAL_REGION_TRIES if settings.planner == "goal_region" else 0,
                 goal_radius=settings.goal_radius,
                 score_stalled=settings.score_stalled,
                 record_tree=settings.record_tree,
@@ -248,6 +255,7 @@ class GraspPlanner:
                 self.space,
                 rng,
                 config,
+                goal_sample_fn=lambda r: self.draw_marginal(1, 1, r)[0],
             )
         # count configurations checked (roots and every edge's points), not edge queries
         return dataclasses.replace(

@@ -51,9 +51,13 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-PLANNER_STYLE = {"learned": ("tab:blue", "learned P(Y)", "-"), "baseline": ("tab:red", "baseline RRT", "--"),
-                 "ompl": ("tab:green", "OMPL RRTConnect", ":"),
-                 "bidirectional": ("tab:purple", "learned P(Y), goal trees", "-.")}  # fmt: skip
+PLANNER_STYLE = {
+    "learned": ("tab:blue", "learned P(Y)", "-"),
+    "baseline": ("tab:red", "baseline RRT", "--"),
+    "ompl": ("tab:green", "OMPL RRTConnect", ":"),
+    "bidirectional": ("tab:purple", "learned P(Y), goal trees", "-."),
+    "goal_region": ("tab:orange", "learned P(Y), goal region", (0, (3, 1, 1, 1, 1, 1))),
+}
 
 
 _PAPER_PLANNERS = ("learned", "baseline")

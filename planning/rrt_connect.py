@@ -27,6 +27,13 @@ iterations alternate: one forest (start or goal) extends towards ``y``, the othe
 node it added; a connection ends the search with the path from a start root through the meeting node to
 the valid grasp at a goal root. A single tree has to reach a grasp in a narrow slot from above, where
 every extension of its nearest node may be blocked; a goal tree grows out of the slot from the grasp.
+
+With ``goal_region_tries`` > 0 the goal trees also get roots from dedicated draws of the goal
+distribution (``goal_sample_fn``), by OMPL's RRTConnect rule: before an iteration, while there is no goal
+tree or fewer goal roots than half the goal trees' nodes, up to ``goal_region_tries`` draws are checked
+(collision-free, phi_o >= the threshold) and the first valid one becomes a root. That is what OMPL's
+RRTConnect does with a sampleable goal region, so the two differ only in the samples their trees grow
+towards (P(Y) here, uniform there).
 """
 
 from __future__ import annotations
@@ -64,6 +71,8 @@ class PlannerConfig:
             extended by a sample" before 2026-12-02: on the jam jar in a hole 1 of 10 queries against 8).
         goal_trees: root goal trees at valid grasps that the start forest did not reach and grow both
             (see the module docstring); ``False`` is the paper's single tree.
+        goal_region_tries: with ``goal_trees``, draws of ``goal_sample_fn`` per attempt to root a goal tree
+            by OMPL's rule (module docstring); 0: goal trees are rooted only at goal samples of P(Y).
         record_tree: return the tree in ``PlanResult.extra`` (``tree_q`` (N, d) nodes, ``tree_parent``
             (N,) parent index, -1 for the roots), e.g. for plotting; off by default (copies the arrays).
     """
@@ -76,12 +85,20 @@ class PlannerConfig:
     goal_radius: float = 3.0
     score_stalled: bool = True
     goal_trees: bool = False
+    goal_region_tries: int = 0
     record_tree: bool = False
 
     def __post_init__(self):
-        if not (self.time_limit_s > 0 and self.max_nodes > 0 and self.step > 0 and self.goal_radius >= 0):
+        if not (
+            self.time_limit_s > 0
+            and self.max_nodes > 0
+            and self.step > 0
+            and self.goal_radius >= 0
+            and self.goal_region_tries >= 0
+        ):
             raise ValueError(
-                f"PlannerConfig: time_limit_s, max_nodes and step must be > 0, goal_radius >= 0, found {self}"
+                "PlannerConfig: time_limit_s, max_nodes and step must be > 0, goal_radius and "
+                f"goal_region_tries >= 0, found {self}"
             )
 
 
@@ -176,6 +193,7 @@ def rrt_connect(
     space,
     rng: np.random.Generator,
     config: PlannerConfig = PlannerConfig(),
+    goal_sample_fn: Callable[[np.random.Generator], np.ndarray] | None = None,
 ) -> PlanResult:
     """Grow a forest from ``roots`` until a goal sample with quality >= the threshold is reached.
 
@@ -187,11 +205,14 @@ def rrt_connect(
         space: a configuration space of :mod:`planning.config_space`.
         rng: the only source of randomness.
         config: limits and thresholds.
+        goal_sample_fn: one draw (d,) of the goal distribution, for ``config.goal_region_tries``.
 
     Returns:
         A :class:`PlanResult`; failure is a result with ``success=False`` and the reason.
     """
     roots = np.atleast_2d(np.asarray(roots, dtype=float))
+    if config.goal_trees and config.goal_region_tries > 0 and goal_sample_fn is None:
+        raise ValueError("rrt_connect: goal_region_tries > 0 needs a goal_sample_fn")
     t0 = time.perf_counter()
     if len(roots) == 0:
         return PlanResult(False, "no collision-free start configuration", 0.0, 0, 0.0, np.empty((0, 0)))
@@ -262,6 +283,23 @@ def rrt_connect(
     goal: _Forest | None = None  # goal trees, rooted at valid grasps (config.goal_trees)
     goal_grasps: dict[int, tuple[float, Any]] = {}  # goal root index -> (quality, payload)
     stalled_scored: set[int] = set()  # start-forest nodes scored where a stalled extension ended
+
+    def root_goal_tree(y: np.ndarray) -> bool:
+        """Roots a goal tree at ``y`` if it is collision-free and a valid grasp."""
+        nonlocal goal
+        if not edge_free(y, y):
+            return False
+        quality, payload = score(y)
+        if quality < config.quality_threshold:
+            return False
+        if goal is None:
+            goal = _Forest(space, y[None, :], min(config.max_nodes, 4096))
+            goal_grasps[0] = (quality, payload)
+        else:
+            goal_grasps[goal.add(y, -1)] = (quality, payload)
+        return True
+
+    region = config.goal_trees and config.goal_region_tries > 0
     it = 0
     while True:
         if time.perf_counter() - t0 > config.time_limit_s:
@@ -269,6 +307,10 @@ def rrt_connect(
         if nodes() >= config.max_nodes:
             return result(False, f"node limit of {config.max_nodes} reached", it=it)
         it += 1
+        if region and (goal is None or len(goal_grasps) < goal.count / 2):
+            for _ in range(config.goal_region_tries):  # OMPL's RRTConnect: sample the goal region
+                if root_goal_tree(np.asarray(goal_sample_fn(rng), dtype=float)):
+                    break
         y, is_goal = sample_fn(rng)
         if goal is not None and it % 2 == 0:
             # the goal trees extend towards y, the start forest CONNECTs towards what they added
@@ -286,16 +328,8 @@ def rrt_connect(
             quality, payload = score(forest.q[i])
             if quality >= config.quality_threshold:
                 return result(True, "valid grasp found", forest.path_to(i), quality, payload, it)
-        new_root = False
-        if config.goal_trees and is_goal and not reached and edge_free(y, y):
-            quality, payload = score(y)
-            if quality >= config.quality_threshold:  # a valid grasp the start forest did not reach
-                if goal is None:
-                    goal = _Forest(space, y[None, :], min(config.max_nodes, 4096))
-                    goal_grasps[0] = (quality, payload)
-                else:
-                    goal_grasps[goal.add(y, -1)] = (quality, payload)
-                new_root = True
+        # a valid grasp the start forest did not reach roots a goal tree
+        new_root = config.goal_trees and is_goal and not reached and root_goal_tree(y)
         if goal is not None and (added or new_root):
             j, _, met = extend(goal, forest.q[i])
             if met:

@@ -35,7 +35,7 @@ def test_quick_bench_json_has_every_section_and_key(quick):
     assert set(quick["quality"]) >= {"epsilon_us", "close_and_score_ms"}
     assert quick["retargeting"]["s_per_step"] > 0
     ham = quick["planning"]["ham"]
-    assert set(ham["planners"]) == {"learned", "baseline", "ompl", "bidirectional"}
+    assert set(ham["planners"]) == {"learned", "baseline", "ompl", "bidirectional", "goal_region"}
     for p in ham["planners"].values():
         assert set(p) >= {
             "success_rate", "median_eta_s", "median_nodes", "median_collision_checks",

@@ -70,8 +70,9 @@ def test_same_seed_same_plan(planner):
     )
 
 
-def test_goal_tree_planner_solves_the_ham_scene(planner, referee):
-    settings = PlanningSettings(planner="bidirectional", time_limit_s=120.0, max_nodes=20_000)
+@pytest.mark.parametrize("name", ["bidirectional", "goal_region"])
+def test_goal_tree_planners_solve_the_ham_scene(planner, referee, name):
+    settings = PlanningSettings(planner=name, time_limit_s=120.0, max_nodes=20_000)
     check_plan(planner.plan(np.random.default_rng(4), settings), referee)
 
 

@@ -281,3 +281,53 @@ def test_goal_trees_join_a_valid_grasp_in_a_pocket_the_single_tree_struggles_wit
             assert np.linalg.norm(b - a) <= step + 1e-12
         assert any(0.18 <= x <= 0.22 and 0.3 < y < 0.5 for x, y in path)  # down the shaft
     assert run(2, True).nodes == both[2].nodes  # the same seed, the same search
+
+
+def test_goal_region_roots_goal_trees_from_its_own_draws():
+    """With goal_region_tries the goal trees get roots from goal_sample_fn (OMPL's RRTConnect rule), even
+    when P(Y) never draws a goal sample; without it such a search never scores anything."""
+    free, _, quality, goal = _in_l_pocket_problem()
+    step = 0.02
+
+    def no_goal_samples(rng):
+        return rng.uniform(0, 1, size=2), False
+
+    def run(tries, seed=0):
+        return rrt_connect(
+            np.array([[0.5, 0.9]]),
+            no_goal_samples,
+            free,
+            quality,
+            EuclideanSpace((step, step)),
+            np.random.default_rng(seed),
+            PlannerConfig(
+                time_limit_s=60,
+                max_nodes=4000,
+                quality_threshold=0.5,
+                goal_trees=True,
+                goal_region_tries=tries,
+            ),
+            goal_sample_fn=lambda rng: goal + rng.normal(scale=0.01, size=2),
+        )
+
+    for seed in range(3):
+        r = run(20, seed)
+        assert r.success and r.message == "valid grasp found (goal tree joined)"
+        path = r.path
+        np.testing.assert_array_equal(path[0], [0.5, 0.9])
+        assert quality(path[-1])[0] >= 0.5
+        for a, b in zip(path[:-1], path[1:], strict=True):
+            assert free(a, b)  # independent re-check, finer than the planner's step
+            assert np.linalg.norm(b - a) <= step + 1e-12
+    off = run(0)
+    assert not off.success and off.quality_evaluations == 0
+    with pytest.raises(ValueError, match="goal_sample_fn"):
+        rrt_connect(
+            np.array([[0.5, 0.9]]),
+            no_goal_samples,
+            free,
+            quality,
+            EuclideanSpace((step, step)),
+            np.random.default_rng(0),
+            PlannerConfig(goal_trees=True, goal_region_tries=5),
+        )

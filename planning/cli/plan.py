@@ -31,8 +31,10 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--planner",
         default="learned",
-        help="learned (default), baseline, ompl or bidirectional (learned with goal trees rooted at valid "
-        "grasps, not in the paper); checked against planning.grasp_planner.PLANNERS",
+        help="learned (default), baseline, ompl, bidirectional (learned with goal trees rooted at valid "
+        "grasps, not in the paper) or goal_region (bidirectional whose goal trees are also rooted at "
+        "draws of the last marginal, as OMPL's RRTConnect samples its goal region); checked against "
+        "planning.grasp_planner.PLANNERS",
     )
     p.add_argument("--trials", type=int, default=1)
     p.add_argument("--time-limit-s", type=float, default=10.0)
