@@ -46,7 +46,7 @@ test: setup
 	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 
 table1: setup
-	$(BIN)/pbdgrasp table1 --seed 0 --planners learned,baseline,bidirectional
+	$(BIN)/pbdgrasp table1 --seed 0 --planners learned,baseline,bidirectional,goal_region,ompl
 
 bench: setup
 	$(BIN)/pbdgrasp bench

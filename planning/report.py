@@ -205,9 +205,12 @@ def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list
 
     others = sorted({r.planner for r in records} - set(_PAPER_PLANNERS))
     intro = (
-        "Not in the paper's table; the same rows, strategies, roots, time limit and goal test (goal trees: "
-        "also a valid last-step sample the tree did not reach, joined by a second tree). Per cell: "
-        "success rate (trials), mean ETA over the successful trials (s), best phi_o."
+        "Not in the paper's table; the same rows, strategies, roots and time limit. Goal trees: the learned "
+        "planner whose valid last-step samples that the tree did not reach root a second tree; goal region: "
+        "goal trees also rooted at draws of N(b_T, B_T) by OMPL's RRTConnect rule; OMPL: its RRTConnect, "
+        "uniform samples and a goal region of collision-free valid N(b_T, B_T) draws (OMPL's own sampler "
+        "uses its process-global RNG, so its trials do not repeat one by one). Per cell: success rate "
+        "(trials), mean ETA over the successful trials (s), best phi_o."
     )
     return _planner_table("Other planners", intro, records, rows, others, cell)
 
