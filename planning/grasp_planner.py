@@ -206,10 +206,15 @@ class GraspPlanner:
                 False, "no collision-free start configuration in N(b_1, B_1)", 0.0, 0, 0.0, np.empty((0, 19))
             )
         lo, hi = self.bounds
+
+        def draw_goal(r: np.random.Generator) -> np.ndarray:
+            """One draw of N(b_T, B_T): the goal region of ``ompl`` and ``goal_region``."""
+            return self.draw_marginal(1, 1, r)[0]
+
         if settings.planner == "ompl":
             result = plan_ompl(
                 roots,
-                lambda r: self.draw_marginal(1, 1, r)[0],
+                draw_goal,
                 self.checker.is_free,
                 self.quality,
                 (lo, hi),
@@ -255,7 +260,7 @@ class GraspPlanner:
                 self.space,
                 rng,
                 config,
-                goal_sample_fn=lambda r: self.draw_marginal(1, 1, r)[0],
+                goal_sample_fn=draw_goal,
             )
         # count configurations checked (roots and every edge's points), not edge queries
         return dataclasses.replace(

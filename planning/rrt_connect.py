@@ -211,7 +211,8 @@ def rrt_connect(
         A :class:`PlanResult`; failure is a result with ``success=False`` and the reason.
     """
     roots = np.atleast_2d(np.asarray(roots, dtype=float))
-    if config.goal_trees and config.goal_region_tries > 0 and goal_sample_fn is None:
+    region = config.goal_trees and config.goal_region_tries > 0  # OMPL's goal-region sampling
+    if region and goal_sample_fn is None:
         raise ValueError("rrt_connect: goal_region_tries > 0 needs a goal_sample_fn")
     t0 = time.perf_counter()
     if len(roots) == 0:
@@ -299,7 +300,6 @@ def rrt_connect(
             goal_grasps[goal.add(y, -1)] = (quality, payload)
         return True
 
-    region = config.goal_trees and config.goal_region_tries > 0
     it = 0
     while True:
         if time.perf_counter() - t0 > config.time_limit_s:

@@ -22,27 +22,9 @@ HAM_FROM_ABOVE = list(HAM_GRASP_Q)  # ham can from above, epsilon ~0.17 (describ
 # Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm on the
 # can facing +x, the fingers point -y and curl around the can in near-horizontal planes at z 0.12-0.21 m;
 # the thumb (base 79 deg) closes the wrap over them on the other side. epsilon ~0.12.
-CHIPS_WRAPPED = [
-    -0.06,
-    0.136,
-    0.1102,
-    1.3546,
-    0.0739,
-    0.0481,
-    1.3813,
-    0.0,
-    0.0375,
-    0.1745,
-    0.0,
-    0.0276,
-    0.1745,
-    0.0,
-    0.0276,
-    0.1745,
-    0.0,
-    0.0276,
-    0.1745,
-]
+CHIPS_WRAPPED = [-0.06, 0.136, 0.1102, 1.3546, 0.0739, 0.0481,
+                 1.3813, 0.0, 0.0375, 0.1745, 0.0, 0.0276, 0.1745,
+                 0.0, 0.0276, 0.1745, 0.0, 0.0276, 0.1745]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

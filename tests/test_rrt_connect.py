@@ -251,83 +251,75 @@ def _in_l_pocket_problem():
     return free, sample, quality, goal
 
 
+POCKET_STEP = 0.02
+POCKET_ROOT = np.array([0.5, 0.9])
+
+
+def _plan_in_pocket(problem, sample, seed, goal_sample_fn=None, **config):
+    """rrt_connect on the L-pocket problem from ``POCKET_ROOT`` with ``sample`` as P(Y)."""
+    free, _, quality, _ = problem
+    return rrt_connect(
+        POCKET_ROOT[None, :],
+        sample,
+        free,
+        quality,
+        EuclideanSpace((POCKET_STEP, POCKET_STEP)),
+        np.random.default_rng(seed),
+        PlannerConfig(time_limit_s=60, max_nodes=4000, quality_threshold=0.5, **config),
+        goal_sample_fn=goal_sample_fn,
+    )
+
+
+def _assert_joined_path_to_the_grasp(r, problem):
+    """A goal tree joined: the path runs from the start root to a valid grasp, every edge free (re-checked
+    finer than the planner's step) and at most one step long."""
+    free, _, quality, _ = problem
+    assert r.success and r.message == "valid grasp found (goal tree joined)"
+    path = r.path
+    np.testing.assert_array_equal(path[0], POCKET_ROOT)  # from the start root ...
+    assert quality(path[-1])[0] >= 0.5 and r.quality == quality(path[-1])[0]  # ... to the valid grasp
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        assert free(a, b)  # independent re-check, finer than the planner's step
+        assert np.linalg.norm(b - a) <= POCKET_STEP + 1e-12
+
+
 def test_goal_trees_join_a_valid_grasp_in_a_pocket_the_single_tree_struggles_with():
-    free, sample, quality, goal = _in_l_pocket_problem()
-    step = 0.02
+    problem = _in_l_pocket_problem()
+    sample = problem[1]
 
     def run(seed, goal_trees):
-        cfg = PlannerConfig(time_limit_s=60, max_nodes=4000, quality_threshold=0.5, goal_trees=goal_trees)
-        return rrt_connect(
-            np.array([[0.5, 0.9]]),
-            sample,
-            free,
-            quality,
-            EuclideanSpace((step, step)),
-            np.random.default_rng(seed),
-            cfg,
-        )
+        return _plan_in_pocket(problem, sample, seed, goal_trees=goal_trees)
 
     single = [run(seed, False) for seed in range(5)]
     both = [run(seed, True) for seed in range(5)]
     assert sum(not r.success for r in single) >= 1  # the paper's single tree hits the node limit
     for r in both:
-        assert r.success and r.message == "valid grasp found (goal tree joined)"
+        _assert_joined_path_to_the_grasp(r, problem)
         assert r.nodes <= 1000
-        path = r.path
-        np.testing.assert_array_equal(path[0], [0.5, 0.9])  # from the start root ...
-        assert quality(path[-1])[0] >= 0.5 and r.quality == quality(path[-1])[0]  # ... to the valid grasp
-        for a, b in zip(path[:-1], path[1:], strict=True):
-            assert free(a, b)  # independent re-check, finer than the planner's step
-            assert np.linalg.norm(b - a) <= step + 1e-12
-        assert any(0.18 <= x <= 0.22 and 0.3 < y < 0.5 for x, y in path)  # down the shaft
+        assert any(0.18 <= x <= 0.22 and 0.3 < y < 0.5 for x, y in r.path)  # down the shaft
     assert run(2, True).nodes == both[2].nodes  # the same seed, the same search
 
 
 def test_goal_region_roots_goal_trees_from_its_own_draws():
     """With goal_region_tries the goal trees get roots from goal_sample_fn (OMPL's RRTConnect rule), even
     when P(Y) never draws a goal sample; without it such a search never scores anything."""
-    free, _, quality, goal = _in_l_pocket_problem()
-    step = 0.02
+    problem = _in_l_pocket_problem()
+    goal = problem[3]
 
     def no_goal_samples(rng):
         return rng.uniform(0, 1, size=2), False
 
-    def run(tries, seed=0):
-        return rrt_connect(
-            np.array([[0.5, 0.9]]),
-            no_goal_samples,
-            free,
-            quality,
-            EuclideanSpace((step, step)),
-            np.random.default_rng(seed),
-            PlannerConfig(
-                time_limit_s=60,
-                max_nodes=4000,
-                quality_threshold=0.5,
-                goal_trees=True,
-                goal_region_tries=tries,
-            ),
-            goal_sample_fn=lambda rng: goal + rng.normal(scale=0.01, size=2),
+    def near_goal(rng):
+        return goal + rng.normal(scale=0.01, size=2)
+
+    def run(tries, seed=0, goal_sample_fn=near_goal):
+        return _plan_in_pocket(
+            problem, no_goal_samples, seed, goal_sample_fn, goal_trees=True, goal_region_tries=tries
         )
 
     for seed in range(3):
-        r = run(20, seed)
-        assert r.success and r.message == "valid grasp found (goal tree joined)"
-        path = r.path
-        np.testing.assert_array_equal(path[0], [0.5, 0.9])
-        assert quality(path[-1])[0] >= 0.5
-        for a, b in zip(path[:-1], path[1:], strict=True):
-            assert free(a, b)  # independent re-check, finer than the planner's step
-            assert np.linalg.norm(b - a) <= step + 1e-12
+        _assert_joined_path_to_the_grasp(run(20, seed), problem)
     off = run(0)
     assert not off.success and off.quality_evaluations == 0
     with pytest.raises(ValueError, match="goal_sample_fn"):
-        rrt_connect(
-            np.array([[0.5, 0.9]]),
-            no_goal_samples,
-            free,
-            quality,
-            EuclideanSpace((step, step)),
-            np.random.default_rng(0),
-            PlannerConfig(goal_trees=True, goal_region_tries=5),
-        )
+        run(5, goal_sample_fn=None)
