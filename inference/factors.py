@@ -27,7 +27,7 @@ import gtsam
 import numpy as np
 
 from assets.errors import InputError
-from retarget.lie import retract
+from assets.se3 import retract
 
 from .params import VariationParams
 
@@ -284,8 +284,8 @@ def modeling_covariance(
     """Sigma_m(t) (T, 19, 19) in ``[omega, v, joints]``, with the joint floor added (paper section IV).
 
     Without ``params.sigma_m_std_config``: the isotropic fingertip covariance (12x12) is mapped to
-    configuration space by ``fingertip_map`` (default: ``retarget.sah.fingertip_jacobian`` and
-    ``retarget.sah.config_cov_from_fingertip_cov``, i.e. ``J+ cov J+^T``), then the wrist rotation and
+    configuration space by ``fingertip_map`` (default: ``assets.sah.fingertip_jacobian`` and
+    ``assets.sah.config_cov_from_fingertip_cov``, i.e. ``J+ cov J+^T``), then the wrist rotation and
     position variances are added on the ``[omega, v]`` diagonal. With it: ``diag(std^2)``. In both cases
     ``joint_floor_std^2`` is added to every joint's variance so that Sigma_r + Sigma_m is positive definite
     even in joint directions the fingertips do not see.

@@ -86,7 +86,7 @@ from scipy.special import log_ndtr, ndtr
 
 from assets.errors import InputError
 from assets.io import atomic_savez, load_npz, require_finite, require_rotation, require_shape, require_spd
-from retarget.lie import local, retract, se3_inverse
+from assets.se3 import local, retract, se3_inverse
 from retarget.trajectory import GRASP_TYPES, Trajectory
 
 from .factors import (
@@ -461,7 +461,7 @@ def solve(
         constraint_gradient_fn: ``(T_world_wrist, joints) -> (phi (m,), grad (m, 19))``, the same phi with
             its gradient (e.g. from the contact normals); default central differences of ``constraint_fn``
             (``params.gradient_step``), 2 x 19 more evaluations of phi per constrained step.
-        joint_limits: (13, 2) lower and upper joint limits [rad] (the SAH's: ``retarget.sah.JOINT_LIMITS``),
+        joint_limits: (13, 2) lower and upper joint limits [rad] (the SAH's: ``assets.sah.JOINT_LIMITS``),
             held by expectation propagation (see the module docstring); None: none, and the means may leave
             the limits.
 

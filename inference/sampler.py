@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from assets.errors import InputError
-from retarget.lie import retract
+from assets.se3 import retract
 
 from .model import VariationModel
 
@@ -45,7 +45,7 @@ class MixtureSample(NamedTuple):
 
 
 def _default_limits() -> np.ndarray:
-    from retarget import sah
+    from assets import sah
 
     return np.asarray(sah.JOINT_LIMITS, dtype=float)
 
@@ -58,7 +58,7 @@ class MixtureSampler:
         wrist_bounds_lo, wrist_bounds_hi: (3,) [m] world box of the uniform strategy's wrist positions.
         beta: probability of the uniform strategy, in [0, 1] (the paper: (0, 1]; > 0 keeps the planner
             probabilistically complete).
-        joint_limits: (13, 2) [rad] lower and upper limits; ``retarget.sah.JOINT_LIMITS`` if None.
+        joint_limits: (13, 2) [rad] lower and upper limits; ``assets.sah.JOINT_LIMITS`` if None.
 
     Raises:
         InputError: bad shapes, empty bounds, beta outside [0, 1], no models with beta < 1.

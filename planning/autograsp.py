@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import assets
+from assets import sah
 from assets.errors import InputError
-from retarget import sah
 
 from ._pybullet import pb
 from .grasp_quality import epsilon_l1

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from retarget.lie import quat_of_rotvec, slerp_rotvec
+from assets.se3 import quat_of_rotvec, slerp_rotvec
 
 __all__ = ["EuclideanSpace", "HandConfigSpace"]
 

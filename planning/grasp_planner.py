@@ -39,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from assets.errors import InputError
+from assets.sah import JOINT_LIMITS
 from inference.model import VariationModel
 from inference.sampler import MixtureSampler, sample
-from retarget.sah import JOINT_LIMITS
 
 from .autograsp import AutoGraspConfig, HandCloser
 from .collision import CollisionChecker

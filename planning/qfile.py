@@ -3,7 +3,7 @@
 Two forms are accepted:
 
 * the plain vector ``{"q": [19 numbers]}``: wrist position (m), wrist rotation vector (rad), then the
-  13 SAH joints (rad) in ``retarget.sah.JOINT_NAMES`` order;
+  13 SAH joints (rad) in ``assets.sah.JOINT_NAMES`` order;
 * the named form ``{"wrist_position_m": [x, y, z], "wrist_rotvec_rad": [rx, ry, rz],
   "joints_deg": {"index_prox": 30, ...}}``: joints in degrees by name, missing joints at the rest pose
   (:func:`planning.world.hand_rest_joints`).

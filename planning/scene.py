@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
-from retarget.lie import make_pose
+from assets.se3 import make_pose
 
 __all__ = [
     "DEMONSTRATED_OBJECTS",

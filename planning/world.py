@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
-from retarget.lie import quat_of_rotvec
+from assets.se3 import quat_of_rotvec
 
 from ._pybullet import connect_direct, pb
 from .scene import Scene, load_scene
@@ -79,13 +79,13 @@ def _urdf_joint_table(urdf: Path):
 def hand_rest_joints(hand: str) -> np.ndarray:
     """The rest (open) pose of a hand's joints in :func:`hand_joint_names` order [rad].
 
-    SAH: ``retarget.sah.rest_joints()`` (thumb opposed, fingers slightly flexed, free of self-collision);
+    SAH: ``assets.sah.rest_joints()`` (thumb opposed, fingers slightly flexed, free of self-collision);
     other hands: 0 clipped into the URDF limits.
     """
     if hand == "sah":
         try:
-            from retarget.sah import rest_joints
-        except ImportError:  # pragma: no cover - until retarget.sah exists
+            from assets.sah import rest_joints
+        except ImportError:  # pragma: no cover - until assets.sah exists
             pass
         else:
             return np.asarray(rest_joints(), dtype=float)
@@ -98,16 +98,16 @@ def hand_rest_joints(hand: str) -> np.ndarray:
 
 
 def hand_joint_names(hand: str) -> list[str]:
-    """The joint order of ``q[6:]`` for a hand: ``retarget.sah.JOINT_NAMES`` for the SAH, else URDF order."""
+    """The joint order of ``q[6:]`` for a hand: ``assets.sah.JOINT_NAMES`` for the SAH, else URDF order."""
     actuated, _ = _urdf_joints(assets.hand_urdf(hand))
     if hand == "sah":
         try:
-            from retarget.sah import JOINT_NAMES
-        except ImportError:  # pragma: no cover - until retarget.sah exists
+            from assets.sah import JOINT_NAMES
+        except ImportError:  # pragma: no cover - until assets.sah exists
             return actuated
         if sorted(JOINT_NAMES) != sorted(actuated):
             raise InputError(
-                f"retarget.sah.JOINT_NAMES {list(JOINT_NAMES)} disagree with the URDF's {actuated}"
+                f"assets.sah.JOINT_NAMES {list(JOINT_NAMES)} disagree with the URDF's {actuated}"
             )
         return list(JOINT_NAMES)
     return actuated
@@ -116,9 +116,9 @@ def hand_joint_names(hand: str) -> list[str]:
 def _default_excluded_pairs(hand: str) -> tuple[tuple[str, str], ...]:
     """Link pairs of a hand that touch by construction (``SELF_COLLISION_EXCLUDED_PAIRS`` of its module)."""
     if hand == "sah":
-        from retarget.sah import SELF_COLLISION_EXCLUDED_PAIRS
+        from assets.sah import SELF_COLLISION_EXCLUDED_PAIRS
     elif hand == "human":
-        from retarget.human_hand import SELF_COLLISION_EXCLUDED_PAIRS
+        from assets.human_hand import SELF_COLLISION_EXCLUDED_PAIRS
     else:
         return ()
     return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
@@ -156,7 +156,7 @@ class World:
         scene: a :class:`Scene` or a scene name/path for :func:`load_scene`.
         hand: the hand to load (``sah``: q is (19,); ``human``: q is (6 + 20,)).
         self_collision_excluded: pairs of hand link names whose mutual collisions are ignored (they
-            touch by construction); default ``retarget.sah.SELF_COLLISION_EXCLUDED_PAIRS`` for the SAH,
+            touch by construction); default ``assets.sah.SELF_COLLISION_EXCLUDED_PAIRS`` for the SAH,
             none for other hands.
 
     Attributes:
@@ -392,7 +392,7 @@ class World:
 
         A link's distance changes as its closest point ``p`` moves along the contact normal ``n`` (from the
         other body towards the link; the other body is static): ``d phi = n . dp``, with ``dp`` from the
-        hand's analytic kinematics (:meth:`retarget.kinematics.HandModel.point_jacobian`). Exact to first
+        hand's analytic kinematics (:meth:`assets.kinematics.HandModel.point_jacobian`). Exact to first
         order wherever the closest features do not switch.
 
         Returns:
@@ -401,7 +401,7 @@ class World:
             frame), then the joints in ``q[6:]`` order [rad]; a link with nothing within
             ``max_distance_m`` has a zero row.
         """
-        from retarget.lie import pose_from_q
+        from assets.se3 import pose_from_q
 
         phi, closest = self._closest_points(q, max_distance_m, include_object, bodies)
         kin, perm = self._kinematics()
@@ -441,7 +441,7 @@ class World:
     def _kinematics(self):
         """The hand's analytic kinematics and, for each joint of ``q[6:]``, its index in the model's order."""
         if self._kin is None:
-            from retarget.kinematics import load_hand_model
+            from assets.kinematics import load_hand_model
 
             kin = load_hand_model(str(assets.hand_urdf(self.hand)))
             self._kin = (kin, np.array([kin.joint_names.index(n) for n in self.joint_names]))

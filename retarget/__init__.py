@@ -1,35 +1,22 @@
-"""Kinematics of the SAH and the human hand, and the retargeting of a demonstration (paper section IV).
+"""The retargeting of a human demonstration to the SAH (paper section IV).
 
-The public API grows with the package; see the README for the configuration and frame conventions.
+The hand models and SE(3) helpers it uses live in :mod:`assets` (:mod:`assets.sah`,
+:mod:`assets.human_hand`, :mod:`assets.kinematics`, :mod:`assets.se3`); the configuration layout in
+:mod:`assets.q_layout`.
 """
 
-from . import human_hand, ik, kinematics, sah
+from . import ik
 from .demonstration import Demonstration
 from .ik import finger_ik, hand_ik
-from .kinematics import HandModel
-from .lie import local, pose_from_q, q_from_pose, retract, se3_exp, se3_inverse, se3_log, so3_exp, so3_log
 from .retargeting import RetargetConfig, RetargetResult, retarget_demonstration, retarget_fingertips
 from .rosenbrock import RosenbrockResult, minimize_rosenbrock
 from .virtual_fingers import VirtualFingers, choose_virtual_fingers
 
 __all__ = [
     "Demonstration",
-    "HandModel",
     "finger_ik",
     "hand_ik",
-    "human_hand",
     "ik",
-    "kinematics",
-    "sah",
-    "local",
-    "pose_from_q",
-    "q_from_pose",
-    "retract",
-    "se3_exp",
-    "se3_inverse",
-    "se3_log",
-    "so3_exp",
-    "so3_log",
     "RetargetConfig",
     "RetargetResult",
     "retarget_demonstration",

@@ -75,7 +75,7 @@ def default_object_prior() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _hand():
-    from . import human_hand  # imported late: the hand model is a sibling module
+    from assets import human_hand
 
     return human_hand
 
@@ -224,7 +224,7 @@ class Demonstration:
             raise InputError("this demonstration holds no noise-free recording", self.path)
         if not -self.num_steps <= step < self.num_steps:
             raise InputError(f"step {step} out of range for {self.num_steps} steps", self.path)
-        from .lie import q_from_pose
+        from assets.se3 import q_from_pose
 
         return np.concatenate([q_from_pose(T[step]), J[step]])
 

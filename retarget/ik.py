@@ -26,10 +26,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from assets import sah
 from assets.errors import InputError
-
-from . import sah
-from .lie import skew
+from assets.se3 import skew
 
 __all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_fk_local"]
 
@@ -215,11 +214,11 @@ def finger_ik(finger: str, p_wrist: np.ndarray, seed: np.ndarray | None = None) 
     """Joint values of one finger placing its tip at (or as near as it can to) ``p_wrist``.
 
     Args:
-        finger: one of :data:`retarget.sah.FINGERS`.
+        finger: one of :data:`assets.sah.FINGERS`.
         p_wrist: (3,) or (N, 3) [m] fingertip targets in the wrist frame.
         seed: (k,) or (N, k) [rad] current values of the finger's joints
             (``sah.FINGER_JOINTS[finger]``); only the thumb uses it, for its fixed base rotation
-            (default: :func:`retarget.sah.rest_joints`). The closed form needs no other seed.
+            (default: :func:`assets.sah.rest_joints`). The closed form needs no other seed.
 
     Returns:
         (N, k) [rad] values of ``sah.FINGER_JOINTS[finger]`` (thumb: base, abd, prox, mid; others: abd,
@@ -261,7 +260,7 @@ def hand_ik(p_wrist_tips: np.ndarray, seed_joints: np.ndarray) -> np.ndarray:
     """IK of all four fingers.
 
     Args:
-        p_wrist_tips: (4, 3) [m] fingertip targets in the wrist frame, :data:`retarget.sah.FINGERS` order.
+        p_wrist_tips: (4, 3) [m] fingertip targets in the wrist frame, :data:`assets.sah.FINGERS` order.
         seed_joints: (13,) [rad]; its thumb base value is kept.
 
     Returns:

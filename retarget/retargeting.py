@@ -13,7 +13,7 @@ Steps, per demonstration:
 3. **Sigma_r(t)**: the step's fingertip mean squared error ``mse = mean_j |F_j(k) - F_j(tau_v)|^2`` taken
    as an isotropic fingertip covariance ``mse / 3 * I_12`` (so that each fingertip's expected squared
    distance is the MSE) and mapped into the 19-D tangent ``[omega, v, 13 joints]`` by the fingertip
-   Jacobian's pseudo-inverse (:func:`retarget.sah.config_cov_from_fingertip_cov`): rank <= 12, the
+   Jacobian's pseudo-inverse (:func:`assets.sah.config_cov_from_fingertip_cov`): rank <= 12, the
    paper's degenerate covariances. The wrist part is GTSAM's Pose3 body tangent (right perturbation).
 
 The distances (paper's d1..d7, weights ``(3, 1, 1, 1, 0.1, 10000, 10)``):
@@ -56,10 +56,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from assets import sah
 from assets.errors import InputError
+from assets.se3 import make_pose, q_from_pose, se3_exp
 
-from . import ik, sah
-from .lie import make_pose, q_from_pose, se3_exp
+from . import ik
 from .rosenbrock import minimize_rosenbrock
 from .trajectory import Trajectory
 from .virtual_fingers import VirtualFingers, virtual_fingers_of
@@ -297,7 +298,7 @@ def palm_centre(hand) -> np.ndarray:
 
 def palm_alignment() -> np.ndarray:
     """rT_h as ``T_hwrist_rwrist`` (4, 4): same axes, SAH palm centre on the human palm centre."""
-    from . import human_hand
+    from assets import human_hand
 
     return make_pose(np.eye(3), palm_centre(human_hand) - palm_centre(sah))
 
@@ -374,7 +375,7 @@ def virtual_finger_targets(
     closes. (The paper leaves the finger width to Sigma_m's 8 mm; without this the retargeted grasps
     penetrate the object and almost no draw of the last marginals is collision-free.)
     """
-    from . import human_hand, sah
+    from assets import human_hand
 
     idx = list(virtual_fingers.human_indices)
     links = human_hand.fk(human_joints)

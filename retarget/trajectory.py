@@ -8,7 +8,7 @@ File format (``numpy.savez_compressed``, no pickles), T steps at a fixed rate:
 key                         shape         meaning
 ==========================  ============  =========================================================
 ``T_object_wrist``          (T, 4, 4)     SAH wrist pose in the object frame [m]
-``joints``                  (T, 13)       SAH joints [rad], order ``retarget.sah.JOINT_NAMES``
+``joints``                  (T, 13)       SAH joints [rad], order ``assets.sah.JOINT_NAMES``
 ``cov_retarget``            (T, 19, 19)   Sigma_r(t), tangent ``[omega, v, 13 joints]`` (GTSAM Pose3
                                           body convention for the wrist); symmetric PSD, may be
                                           rank-deficient (the paper's degenerate covariances)

@@ -180,9 +180,9 @@ def effective_force_directions(joints: np.ndarray) -> np.ndarray:
     """Closing directions of the five human fingertips in the wrist frame, (20,) -> (5, 3) unit.
 
     The fingertip velocity when every flexion joint of the finger (all its joints but the abduction
-    ones) increases together, by central differences of :func:`retarget.human_hand.fingertip_positions`.
+    ones) increases together, by central differences of :func:`assets.human_hand.fingertip_positions`.
     """
-    from . import human_hand
+    from assets import human_hand
 
     joints = np.asarray(joints, dtype=float)
     out = np.zeros((len(HUMAN_FINGERS), 3))

@@ -1,17 +1,17 @@
 """Learned strategies built in code, so planner tests need neither a demonstration nor retargeting.
 
 ``ham_top_down_trajectory`` is the direct transformation of a straight top-down approach that ends at a
-hand-placed grasp of the ham can (``planning.bench.HAM_GRASP_Q``, epsilon ~0.17): 15 cm above
+hand-placed grasp of the ham can (``pbdgrasp.bench.HAM_GRASP_Q``, epsilon ~0.17): 15 cm above
 the grasp with the hand open, a minimum-jerk descent, the fingers pre-shaped on the way.
 """
 
 import numpy as np
 
+from assets import sah
+from assets.se3 import pose_from_q, se3_inverse
 from inference.model import solve
 from planning import bench
 from planning.scene import load_scene
-from retarget import sah
-from retarget.lie import pose_from_q, se3_inverse
 from retarget.trajectory import Trajectory
 
 HAM_GRASP_Q = np.array(bench.HAM_GRASP_Q)  # world frame of the "ham" scene

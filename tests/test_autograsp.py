@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
+from assets import sah
+from pbdgrasp.bench import HAM_GRASP_Q
 from planning.autograsp import AutoGraspConfig, HandCloser, _reduce_patch
-from planning.bench import HAM_GRASP_Q
 from planning.world import World
-from retarget import sah
 
 QUALITY_THRESHOLD = 0.05  # the paper's epsilon: a grasp is a solution when phi_o >= 0.05
 MAX_PENETRATION_M = 0.002  # no link may sink deeper than 2 mm into anything after closing
@@ -18,7 +18,7 @@ STOP_REASON_M = 0.0015  # a stopped joint must move a link within this distance 
 
 # Hand-placed grasps, found by a local search around a nominal placement and checked by eye on renders.
 # q = [wrist position (m), wrist rotation vector (rad), 13 SAH joints (rad) in sah.JOINT_NAMES order].
-HAM_FROM_ABOVE = list(HAM_GRASP_Q)  # ham can from above, epsilon ~0.17 (described in planning/bench.py)
+HAM_FROM_ABOVE = list(HAM_GRASP_Q)  # ham can from above, epsilon ~0.17 (described in pbdgrasp/bench.py)
 # Chips can (7.5 cm diameter, 23 cm high, upright at the origin), wrapped from the side: the palm on the
 # can facing +x, the fingers point -y and curl around the can in near-horizontal planes at z 0.12-0.21 m;
 # the thumb (base 79 deg) closes the wrap over them on the other side. epsilon ~0.12.
@@ -137,7 +137,7 @@ def test_bad_config_and_q_raise(ham):
 
 
 def test_cli_quality_prints_epsilon_and_renders(tmp_path, capsys):
-    from planning.cli import main
+    from pbdgrasp.cli import main
 
     qfile = tmp_path / "q.json"
     qfile.write_text(json.dumps({"q": CHIPS_WRAPPED}))

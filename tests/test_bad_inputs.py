@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from assets.errors import InputError
 from inference.model import VariationModel
 from inference.params import VariationParams
-from planning.cli import main
+from pbdgrasp.cli import main
 from planning.qfile import load_q
 from planning.scene import load_scene
 from retarget.demonstration import Demonstration

@@ -5,7 +5,7 @@ import sys
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "planning.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "pbdgrasp.cli", *args], capture_output=True, text=True)
 
 
 def test_unknown_subcommand_is_one_error_line_and_status_2():

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import yaml
 
+from assets import human_hand as hand
 from assets.errors import InputError
-from retarget import human_hand as hand
+from assets.se3 import se3_exp
 from retarget.demonstration import Demonstration, default_object_prior
-from retarget.lie import se3_exp
 
 
 def make_demo(n=6, rng=None, **over):

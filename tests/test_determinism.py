@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from planning.bench import _quick_model
+from pbdgrasp.bench import _quick_model
 from planning.grasp_planner import GraspPlanner, PlanningSettings
 
 # a node budget, not a time budget, ends the unsolved queries: the outcome must not depend on the clock
@@ -67,7 +67,7 @@ def test_different_seeds_give_different_trees(model):
 _OMPL_SCRIPT = """
 import json, sys
 import numpy as np
-from planning.bench import _quick_model
+from pbdgrasp.bench import _quick_model
 from planning.grasp_planner import GraspPlanner, PlanningSettings
 with GraspPlanner("ham", [_quick_model()]) as p:
     r = p.plan(np.random.default_rng(5), PlanningSettings(planner="ompl", time_limit_s=60.0, num_roots=30))

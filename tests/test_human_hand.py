@@ -4,7 +4,7 @@ import numpy as np
 import pybullet as pb
 
 import assets
-from retarget import human_hand as hh
+from assets import human_hand as hh
 
 TOL_M = 1e-9
 # GraspIt! HumanHand20DOF segment lengths [m] (proximal, middle, distal)

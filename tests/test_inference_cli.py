@@ -3,9 +3,9 @@
 import numpy as np
 from test_inference_model import make_traj
 
+from assets.sah import JOINT_LIMITS
 from inference import VariationModel, solve
-from planning.cli import main
-from retarget.sah import JOINT_LIMITS
+from pbdgrasp.cli import main
 
 
 def test_infer_writes_a_model(tmp_path, capsys):

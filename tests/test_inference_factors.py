@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from assets.errors import InputError
+from assets.se3 import retract, se3_exp
 from inference.factors import (
     constraint_factors,
     constraint_gradient,
@@ -16,7 +17,6 @@ from inference.factors import (
     modeling_covariance,
 )
 from inference.params import VariationParams
-from retarget.lie import retract, se3_exp
 
 JACOBIAN_ATOL = 1e-7  # central differences with h = 1e-6 on O(1) functions
 H_STEP = 1e-6
@@ -180,7 +180,7 @@ def test_constraint_gradient_of_an_analytic_function():
 
 
 def _standin_map(T_object_wrist, joints, cov12):
-    """A fixed full-rank 12x19 'fingertip Jacobian': the same mapping J+ cov J+^T as retarget.sah."""
+    """A fixed full-rank 12x19 'fingertip Jacobian': the same mapping J+ cov J+^T as assets.sah."""
     J = np.random.default_rng(0).normal(size=(12, 19))
     Jp = np.linalg.pinv(J)
     return np.broadcast_to(Jp @ cov12 @ Jp.T, (len(T_object_wrist), 19, 19)).copy()
@@ -205,7 +205,7 @@ def test_modeling_covariance_mapping_wrist_terms_and_floor():
 
 
 def test_modeling_covariance_with_the_sah_jacobian_is_positive_definite():
-    from retarget import sah
+    from assets import sah
 
     joints = np.tile(np.mean(np.asarray(sah.JOINT_LIMITS), axis=1), (2, 1))
     cov = modeling_covariance(se3_exp(np.zeros((2, 6))), joints, "precision", VariationParams())

@@ -9,9 +9,9 @@ import pytest
 from test_inference_factors import _standin_map, numerical_jacobian
 
 from assets.errors import InputError
+from assets.se3 import local, se3_exp
 from inference import VariationModel, VariationParams, build_graph, factor_covariances, initial_values, solve
 from inference.model import key_j, key_o, key_w
-from retarget.lie import local, se3_exp
 from retarget.trajectory import Trajectory
 
 REL_TOL_EXACT = 1e-9  # linear-Gaussian parts: closed form vs GTSAM

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from assets.errors import InputError
-from retarget.kinematics import HandModel
+from assets.kinematics import HandModel
 
 TOL = 1e-12
 

@@ -4,7 +4,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from retarget import lie
+from assets import se3 as lie
 
 ATOL = 1e-10
 

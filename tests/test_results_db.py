@@ -1,6 +1,6 @@
 """The trial store: rows written one by one, resumable, never duplicated."""
 
-from planning.results_db import TrialRecord, finished_keys, insert_trial, load_trials, open_db, source_commit
+from pbdgrasp.results_db import TrialRecord, finished_keys, insert_trial, load_trials, open_db, source_commit
 
 
 def rec(trial, success=True, planner="learned"):

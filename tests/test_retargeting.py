@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from assets import sah
+from assets import se3 as lie
 from assets.errors import InputError
-from retarget import lie, sah
 from retarget.retargeting import (
     RetargetConfig,
     fingertip_cov_to_config,
@@ -257,7 +258,7 @@ def _tiny_demo(path):
 
 
 def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
-    from planning.cli import main
+    from pbdgrasp.cli import main
 
     _tiny_demo(tmp_path / "tiny.npz")
     out = tmp_path / "out" / "tiny.traj.npz"
@@ -275,7 +276,7 @@ def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
 
 
 def test_cli_errors_cleanly_on_a_bad_demonstration(tmp_path, capsys):
-    from planning.cli import main
+    from pbdgrasp.cli import main
 
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not an archive")

@@ -6,7 +6,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import assets
-from retarget import lie, sah
+from assets import sah
+from assets import se3 as lie
 
 FK_TOL_M = 1e-6
 FK_TOL_RAD = 1e-6

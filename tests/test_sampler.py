@@ -6,9 +6,9 @@ from test_inference_factors import _standin_map
 from test_inference_model import make_traj
 
 from assets.errors import InputError
+from assets.se3 import local, pose_from_q, se3_exp
 from inference import MixtureSampler, sample, sample_marginal, sample_object, solve
 from inference.sampler import _compose, _quat_from_matrix, _rotvec_from_quat
-from retarget.lie import local, pose_from_q, se3_exp
 
 LIMITS = np.array([[-0.3, 1.2]] * 13)
 ALGEBRA_ATOL = 1e-12

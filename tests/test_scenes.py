@@ -140,11 +140,11 @@ def assert_free_and_closes_on_the_object_only(world, q, clearance_m):
 
 def test_ham_arc_admits_the_ham_strategys_grasp_from_above():
     """The narrow-passage scene must leave room for the grasp its strategy makes (the paper's learned planner
-    solved it): the hand-placed ham grasp from above (planning.bench.HAM_GRASP_Q, epsilon 0.17 on the bare
+    solved it): the hand-placed ham grasp from above (pbdgrasp.bench.HAM_GRASP_Q, epsilon 0.17 on the bare
     can) is collision-free between the walls, and closing it there still gives a valid grasp, its fingers
     in the 40 mm slot. With the thumb-side wall 40 mm from the can (until 2026-12-01) it was 66 mm inside
     that wall: every valid grasp of the ham strategy put the SAH's thumb module 31-40 mm into it."""
-    from planning.bench import HAM_GRASP_Q
+    from pbdgrasp.bench import HAM_GRASP_Q
     from planning.world import World
 
     with World("ham_arc") as w:

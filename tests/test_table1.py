@@ -13,11 +13,11 @@ import sqlite3
 import numpy as np
 import pytest
 
-from planning.cli import main
-from planning.paper import PAPER_TABLE1, ROWS
-from planning.report import best_trials, success_interval, summarize, write_report
-from planning.results_db import TrialRecord, load_trials
-from planning.table1 import Table1Config, parse_names, trial_rng
+from pbdgrasp.cli import main
+from pbdgrasp.paper import PAPER_TABLE1, ROWS
+from pbdgrasp.report import best_trials, success_interval, summarize, write_report
+from pbdgrasp.results_db import TrialRecord, load_trials
+from pbdgrasp.table1 import Table1Config, parse_names, trial_rng
 
 QUICK_ROWS = ("ham", "jam_hole")
 PLANNERS = ("learned", "baseline")
@@ -155,8 +155,8 @@ def test_strategy_cache_keys_follow_the_hand_model(tmp_path, monkeypatch, caplog
     """Editing the SAH's URDF must miss the strategy cache (it once did not: a corrected hand reused old
     strategies). The retargeting is replaced by a stub that stops at the cache miss."""
     import assets
-    import planning.strategy
-    from planning.table1 import prepare_strategy
+    import pbdgrasp.strategy
+    from pbdgrasp.table1 import prepare_strategy
 
     class CacheMiss(Exception):
         pass
@@ -164,12 +164,12 @@ def test_strategy_cache_keys_follow_the_hand_model(tmp_path, monkeypatch, caplog
     def stop(*args, **kwargs):
         raise CacheMiss
 
-    monkeypatch.setattr(planning.strategy, "retarget_in_scene", stop)
+    monkeypatch.setattr(pbdgrasp.strategy, "retarget_in_scene", stop)
     original = assets.hand_urdf
 
     def missed_path() -> str:
         caplog.clear()
-        with caplog.at_level("INFO", logger="planning.table1"), pytest.raises(CacheMiss):
+        with caplog.at_level("INFO", logger="pbdgrasp.table1"), pytest.raises(CacheMiss):
             prepare_strategy("ham", tmp_path / "cache")
         (line,) = [r.getMessage() for r in caplog.records if "cache miss" in r.getMessage()]
         return line.split("-> ")[1]
@@ -299,7 +299,7 @@ def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
     args[args.index("--workers") + 1] = "0"  # in-process: SIGKILL hits the process that writes
     args += ["--no-renders", "--report-dir", str(d / "killed_report")]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "planning.cli", *args],
+        [sys.executable, "-m", "pbdgrasp.cli", *args],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )  # fmt: skip
     deadline = time.monotonic() + 300
@@ -347,7 +347,7 @@ def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, m
     source digest (it did not before 2026-12-01, so stale trajectories were reused)."""
     from planning import table1
 
-    for rel in ("retarget/retargeting.py", "planning/strategy.py", "planning/world.py"):
+    for rel in ("retarget/retargeting.py", "pbdgrasp/strategy.py", "planning/world.py"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("x = 1\n")
     monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
@@ -358,7 +358,7 @@ def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, m
 
 def test_the_source_digest_follows_the_code_not_its_docstrings_or_comments(tmp_path, monkeypatch):
     """A docstring, a comment or a re-wrapped line recomputes nothing (a docstring edit of
-    planning/strategy.py once re-ran every retargeting); any change of the code does, a string constant
+    pbdgrasp/strategy.py once re-ran every retargeting); any change of the code does, a string constant
     that is not a docstring included."""
     from planning import table1
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from assets.errors import InputError
-from retarget.lie import se3_exp
+from assets.se3 import se3_exp
 from retarget.trajectory import Trajectory
 
 

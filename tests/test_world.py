@@ -9,13 +9,13 @@ import numpy as np
 import pybullet as pb
 import pytest
 
+from assets import sah
 from assets.errors import InputError
+from assets.se3 import pose_from_q
 from planning.qfile import load_q, q_from_dict, save_q
 from planning.world import World
-from retarget import sah
-from retarget.lie import pose_from_q
 
-FK_TOL_M = 1e-6  # pybullet's link frames vs retarget.sah FK
+FK_TOL_M = 1e-6  # pybullet's link frames vs assets.sah FK
 AABB_MARGIN_M = 0.006  # pybullet pads link AABBs by its collision margin (~5 mm measured)
 SHIFT_TOL_M = 1e-4  # the table is a plane: lowering the hand by dz lowers the distance by dz
 
@@ -174,8 +174,8 @@ def test_link_distance_gradients_match_central_differences(ham_arc):
     """The analytic gradient (contact normal through the hand's kinematics) against central differences
     of the distances themselves (step 0.01 mm, in the same tangent), near the ham and the table, for the
     table and obstacles and for the object alone; links with nothing in range have zero rows."""
+    from assets.se3 import q_from_pose
     from inference.factors import constraint_gradient
-    from retarget.lie import q_from_pose
 
     w = ham_arc
     rng = np.random.default_rng(0)
@@ -254,7 +254,7 @@ def test_qfile_round_trip_and_errors(tmp_path):
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "planning.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "pbdgrasp.cli", *args], capture_output=True, text=True)
 
 
 def test_cli_render_writes_a_png(tmp_path):
@@ -285,7 +285,7 @@ def test_cli_assets_lists_everything():
 
 def test_human_hand_world_with_excluded_pairs():
     # the human URDF's wrist overlaps its little-finger and thumb bases by construction: the default
-    # exclusions come from retarget.human_hand.SELF_COLLISION_EXCLUDED_PAIRS
+    # exclusions come from assets.human_hand.SELF_COLLISION_EXCLUDED_PAIRS
     with World("ham", hand="human") as w:
         assert w.dof == 26
         q = np.concatenate([[0, 0, 0.6, 0, 0, 0], w.rest_q()[6:]])

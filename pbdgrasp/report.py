@@ -1,6 +1,6 @@
 """The Table I report: the paper's values and ours side by side, success over time, and the best grasps.
 
-Our columns, from the stored trials (:mod:`planning.results_db`) of one run's rows, planners and trial
+Our columns, from the stored trials (:mod:`pbdgrasp.results_db`) of one run's rows, planners and trial
 numbers:
 
 * Quality: the best phi_o over all learned trials (the paper: "the best quality of all trials"), three
@@ -357,7 +357,7 @@ def best_trials(records: Sequence[TrialRecord], rows: Sequence[str]) -> dict[str
 
 
 def _close_camera(scene, zoom: float) -> dict:
-    from .world import default_camera
+    from planning.world import default_camera
 
     cam = default_camera(scene, "side")
     target = np.asarray(cam["target"], dtype=float)
@@ -385,7 +385,7 @@ def render_best_grasps(
     """
     from matplotlib.figure import Figure
 
-    from .world import World
+    from planning.world import World
 
     best = best_trials(records, rows)
     nr, nc = _grid(len(rows))

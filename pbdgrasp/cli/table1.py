@@ -50,10 +50,10 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from pbdgrasp.paper import ROWS
+    from pbdgrasp.report import write_report
+    from pbdgrasp.table1 import Table1Config, float_kernels, parse_names, run_table1, strategy_final_q
     from planning.grasp_planner import PLANNERS
-    from planning.paper import ROWS
-    from planning.report import write_report
-    from planning.table1 import Table1Config, float_kernels, parse_names, run_table1, strategy_final_q
 
     if args.workers is not None and args.workers < 0:
         raise InputError(f"--workers: expected >= 0, found {args.workers}")

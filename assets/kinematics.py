@@ -22,7 +22,7 @@ import numpy as np
 
 from assets.errors import InputError
 
-from .lie import make_pose, skew
+from .se3 import make_pose, skew
 
 __all__ = ["Joint", "HandModel", "load_hand_model"]
 

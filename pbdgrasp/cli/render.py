@@ -95,9 +95,9 @@ def run(args) -> int:
 
 def _run_demo(args) -> int:
     """Render a demonstration's human hand (the recorded, noisy poses) at the chosen steps, side by side."""
+    from assets.se3 import q_from_pose
     from planning.world import World
     from retarget.demonstration import Demonstration
-    from retarget.lie import q_from_pose
 
     demo = Demonstration.load(args.demo)
     try:

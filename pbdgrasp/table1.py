@@ -1,6 +1,6 @@
 """Reproducing the paper's Table I (section VIII): the strategy pipeline, the trials and their distribution.
 
-For every row (a scene of the same name, :data:`planning.paper.ROWS`):
+For every row (a scene of the same name, :data:`pbdgrasp.paper.ROWS`):
 
 1. the strategy: the scene's demonstration (``Scene.strategy``; the bottle uses the chips can's, the big
    cup the small cup's) is retargeted to the SAH with the collision term checked in the demonstrated
@@ -18,7 +18,7 @@ process per core by default) or an existing cluster given by its scheduler addre
 the same file system: they load the ``.model.npz`` files by path). Each worker process builds and keeps
 its own :class:`~planning.grasp_planner.GraspPlanner` per row (one pybullet client per world, never shared
 between processes). The coordinating process writes each finished trial to the SQLite results database
-(:mod:`planning.results_db`) as it completes, so a run killed at any moment resumes where it stopped.
+(:mod:`pbdgrasp.results_db`) as it completes, so a run killed at any moment resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ import numpy as np
 
 import assets
 from assets.errors import InputError
+from planning.grasp_planner import PLANNERS, PlanningSettings
 
-from .grasp_planner import PLANNERS, PlanningSettings
 from .paper import ROWS
 from .results_db import (
     TrialRecord,
@@ -175,20 +175,20 @@ _PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 #: of its key too (it was not before 2026-12-01: an edit of world.py reused stale trajectories).
 RETARGET_SOURCES = (
     "retarget",
-    "planning/strategy.py",
+    "pbdgrasp/strategy.py",
     "planning/world.py",
     "planning/scene.py",
     "planning/_pybullet.py",
 )
 #: Sources inside those folders that no cached step runs: the demonstration generator only writes the
 #: demonstration files, whose contents are part of the retargeting key.
-UNCACHED_SOURCES = ("retarget/demo_generator.py",)
+UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
 MODEL_SOURCES = (
     "inference",
     "planning/world.py",
     "planning/scene.py",
     "planning/_pybullet.py",
-    "planning/strategy.py",
+    "pbdgrasp/strategy.py",
 )
 
 
@@ -287,11 +287,11 @@ def prepare_strategy(
         The :class:`Strategy` with the cached file paths.
     """
     from inference import VariationParams
+    from planning.scene import load_scene
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig
     from retarget.trajectory import Trajectory
 
-    from .scene import load_scene
     from .strategy import learn_in_scene, retarget_in_scene
 
     cache = Path(cache_dir)
@@ -335,10 +335,9 @@ def prepare_strategy(
 
 def strategy_final_q(strategy: Strategy) -> np.ndarray:
     """The strategy's mean final configuration (19,) in the row's world (for pictures)."""
+    from assets.se3 import q_from_pose
     from inference.model import VariationModel
-    from retarget.lie import q_from_pose
-
-    from .scene import load_scene
+    from planning.scene import load_scene
 
     model = VariationModel.load(strategy.model_path)
     T_world_wrist = load_scene(strategy.row).T_world_object @ model.T_object_wrist_mean[-1]
@@ -411,8 +410,7 @@ _PLANNER_CACHE: dict = {}
 
 def _planner(row: str, model_path: str, model_sha256: str):
     from inference.model import VariationModel
-
-    from .grasp_planner import GraspPlanner
+    from planning.grasp_planner import GraspPlanner
 
     key = (row, model_sha256)
     gp = _PLANNER_CACHE.get(key)
@@ -565,7 +563,7 @@ def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
         run_trials: ``False`` only collects the stored trials (to report on a partial run).
 
     Returns:
-        A :class:`RunSummary`; the report is :func:`planning.report.write_report`'s job.
+        A :class:`RunSummary`; the report is :func:`pbdgrasp.report.write_report`'s job.
 
     Raises:
         InputError: the database holds trials of the requested rows run with other parameters.

@@ -153,9 +153,9 @@ def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
     Returns:
         A :class:`retarget.trajectory.Trajectory` (T steps, precision grasp, the ham scene's prior).
     """
+    from assets import sah
+    from assets.se3 import pose_from_q, se3_inverse
     from planning.scene import load_scene
-    from retarget import sah
-    from retarget.lie import pose_from_q, se3_inverse
     from retarget.trajectory import Trajectory
 
     scene = load_scene("ham")
@@ -273,10 +273,10 @@ def bench_collision(
     Configurations are uniform in the scene's wrist bounds and joint limits; edges join consecutive draws
     of P(Y) (beta = 0.05) of ``model``, the planner's typical query.
     """
+    from assets.sah import JOINT_LIMITS
     from inference.sampler import MixtureSampler
     from planning.collision import CollisionChecker
     from planning.world import World
-    from retarget.sah import JOINT_LIMITS
 
     rng = rng or np.random.default_rng(0)
     with World("ham") as world:
@@ -326,8 +326,8 @@ def bench_quality(repeats_epsilon: int = 200, repeats_close: int = 20) -> dict:
 
 def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
     """Seconds per step of retargeting the last ``num_steps`` steps of the ham demonstration (with d6)."""
+    from pbdgrasp.strategy import object_frame_is_free
     from planning.scene import load_scene
-    from planning.strategy import object_frame_is_free
     from planning.world import World
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig, retarget_fingertips, virtual_finger_targets
@@ -359,7 +359,7 @@ def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
 def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
     """The learned strategy of a scene by the real pipeline, from the Table I cache.
 
-    :func:`planning.table1.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
+    :func:`pbdgrasp.table1.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
     step: the scene's demonstration retargeted in the demonstrated object's own scene, solved with the
     scene's object prior and constraints, each step cached by the hash of its inputs.
 

@@ -1,7 +1,7 @@
 """``pbdgrasp plan``: plan grasps in a scene with learned strategies, the baseline RRT or OMPL (paper VII).
 
 Each trial is an independent query with its own generator spawned from ``--seed``; with ``-o`` every
-finished trial is stored at once as a row of a SQLite results database (see :mod:`planning.results_db`),
+finished trial is stored at once as a row of a SQLite results database (see :mod:`pbdgrasp.results_db`),
 and trials already stored there are skipped, so an interrupted run resumes.
 """
 
@@ -47,8 +47,8 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from assets.errors import InputError
+    from pbdgrasp.results_db import TrialRecord, finished_keys, insert_trial, open_db, source_commit
     from planning.grasp_planner import GraspPlanner, PlanningSettings
-    from planning.results_db import TrialRecord, finished_keys, insert_trial, open_db, source_commit
 
     if args.trials < 1:
         raise InputError(f"--trials: expected a count >= 1, found {args.trials}")
@@ -102,7 +102,7 @@ def run(args) -> int:
             bar.set_postfix(solved=f"{sum(r.success for r in results)}/{len(results)}")
         if args.render and best is not None:
             from assets.io import atomic_write
-            from planning.cli.render import png_bytes
+            from pbdgrasp.cli.render import png_bytes
 
             image = planner.world.render(best.grasp.closed_q)
             atomic_write(args.render, lambda f: f.write(png_bytes(image)))

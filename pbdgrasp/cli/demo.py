@@ -31,7 +31,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from retarget.demo_generator import DEMONSTRATED_OBJECTS, generate, object_rng
+    from assets.demonstrations.generate import DEMONSTRATED_OBJECTS, generate, object_rng
 
     if getattr(args, "demo_command", None) != "generate":
         raise InputError("expected an action: pbdgrasp demo generate [--object O | --all]")

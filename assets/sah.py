@@ -7,7 +7,7 @@ every 13-vector and by ``q[6:]``, are :data:`JOINT_NAMES`; the four distal joint
 1:1 (:func:`expand_mimic`).
 
 Tangent convention of :func:`fingertip_jacobian`: 19 columns ``[omega (3), v (3), 13 joints]``, the
-wrist pose perturbed on the right, ``T_object_wrist @ Exp(xi)`` (:func:`retarget.lie.retract`), as
+wrist pose perturbed on the right, ``T_object_wrist @ Exp(xi)`` (:func:`assets.se3.retract`), as
 GTSAM's Pose3 and as the 19x19 configuration covariances.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 import assets
 
 from .kinematics import HandModel, collision_radius, load_hand_model
-from .lie import skew
+from .se3 import skew
 
 __all__ = [
     "JOINT_NAMES",

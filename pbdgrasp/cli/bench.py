@@ -1,7 +1,7 @@
 """``pbdgrasp bench``: the performance figures of every stage, measured in one process (issue 9).
 
 Prints a table (the machine first) or, with ``--json``, the full results as JSON on stdout; ``-o`` also
-writes the JSON to a file (atomically). See :mod:`planning.bench` for what is measured and how.
+writes the JSON to a file (atomically). See :mod:`pbdgrasp.bench` for what is measured and how.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from assets.errors import InputError
     from assets.io import atomic_write
-    from planning.bench import BenchConfig, format_table, run_bench
+    from pbdgrasp.bench import BenchConfig, format_table, run_bench
 
     models = []
     for item in args.model:

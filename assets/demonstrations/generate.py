@@ -34,10 +34,9 @@ import open3d as o3d
 from scipy.optimize import least_squares
 
 import assets
-
-from . import lie
-from .demonstration import FINGERS, RATE_HZ, Demonstration, default_object_prior
-from .virtual_fingers import virtual_fingers_of
+from assets import se3
+from retarget.demonstration import FINGERS, RATE_HZ, Demonstration, default_object_prior
+from retarget.virtual_fingers import virtual_fingers_of
 
 __all__ = [
     "Strategy",
@@ -85,7 +84,7 @@ class GenerationError(RuntimeError):
 
 
 def _hand():
-    from . import human_hand
+    from assets import human_hand
 
     return human_hand
 
@@ -453,7 +452,7 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
     R0 = strategy.R_object_wrist
 
     def unpack(x):
-        return lie.make_pose(R0 @ lie.so3_exp(x[:3]), x[3:6]), x[6:]
+        return se3.make_pose(R0 @ se3.so3_exp(x[:3]), x[3:6]), x[6:]
 
     tip_sigma_m = 0.002
 
@@ -586,8 +585,8 @@ def _trajectory(strategy: Strategy, T_final: np.ndarray, J_final: np.ndarray, sa
     J_open[flex] = np.clip(np.minimum(J_final[flex], 0.15), limits[flex, 0], limits[flex, 1])
     sw = min_jerk(t / (0.75 * D))
     sj = min_jerk((t - 0.45 * D) / (0.55 * D))
-    xi = lie.local(T_pre, T_final)
-    T = lie.retract(T_pre, sw[:, None] * xi)
+    xi = se3.local(T_pre, T_final)
+    T = se3.retract(T_pre, sw[:, None] * xi)
     J = J_open + sj[:, None] * (J_final - J_open)
     return t, T, J
 
@@ -674,7 +673,7 @@ def generate(
     e_p = correlated_noise(rng, n, 3, NOISE["tracker_position_sigma_m"], dt, tau)
     e_r = correlated_noise(rng, n, 3, NOISE["tracker_rotation_sigma_rad"], dt, tau)
     e_j = correlated_noise(rng, n, J.size, NOISE["glove_sigma_rad"], dt, tau)
-    T_rec = lie.make_pose(T_true[:, :3, :3] @ lie.so3_exp(e_r), T_true[:, :3, 3] + e_p)
+    T_rec = se3.make_pose(T_true[:, :3, :3] @ se3.so3_exp(e_r), T_true[:, :3, 3] + e_p)
     mu, cov = default_object_prior()
     demo = Demonstration(
         T_object_wrist=T_rec,

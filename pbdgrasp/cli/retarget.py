@@ -32,8 +32,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
-    from planning.strategy import retarget_in_scene
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig
 

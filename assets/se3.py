@@ -6,7 +6,7 @@ Conventions used everywhere in pbdgrasp:
   ``p_a = T_a_b @ p_b``; compose only when inner frames match, ``T_a_c = T_a_b @ T_b_c``.
 * The 19-D hand configuration is ``q = [p (3, m), r (3, rad), joints (13, rad)]``: the wrist position
   and its rotation vector (scaled axis, the paper's orientation) in the world (or object) frame, then
-  the SAH joints in :data:`retarget.sah.JOINT_NAMES` order. See :func:`pose_from_q`.
+  the SAH joints in :data:`assets.sah.JOINT_NAMES` order. See :func:`pose_from_q`.
 * Covariances of poses use GTSAM's Pose3 tangent ``xi = [omega (3, rad), v (3, m)]`` in the body frame
   with right perturbation ``T = T_mean @ Exp(xi)`` (:func:`retract`); ``Exp`` is the full SE(3)
   exponential, equal to ``gtsam.Pose3.Expmap`` and, in GTSAM's default build, ``Pose3.retract``.

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import time
 
+from assets.sah import JOINT_LIMITS
 from inference import VariationParams, solve
-from retarget.sah import JOINT_LIMITS
 from retarget.trajectory import Trajectory
 
 NAME = "infer"
@@ -31,8 +31,8 @@ def run(args) -> int:
     traj = Trajectory.load(args.trajectory)
     params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
     if args.scene:
+        from pbdgrasp.strategy import learn_in_scene
         from planning.scene import load_scene
-        from planning.strategy import learn_in_scene
 
         model = learn_in_scene(traj, load_scene(args.scene), params)
     else:

@@ -17,16 +17,15 @@ from collections.abc import Callable
 
 import numpy as np
 
+from assets.sah import JOINT_LIMITS
+from assets.se3 import pose_from_q, q_from_pose
 from inference.model import VariationModel, solve
 from inference.params import VariationParams
+from planning.scene import Scene
+from planning.world import World
 from retarget.demonstration import Demonstration
-from retarget.lie import pose_from_q, q_from_pose
 from retarget.retargeting import RetargetConfig, RetargetResult, retarget_demonstration
-from retarget.sah import JOINT_LIMITS
 from retarget.trajectory import Trajectory
-
-from .scene import Scene
-from .world import World
 
 __all__ = [
     "object_frame_is_free",

@@ -26,12 +26,12 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from assets import sah
     from assets.io import atomic_write
+    from pbdgrasp.cli.render import png_bytes
     from planning.autograsp import AutoGraspConfig, HandCloser
-    from planning.cli.render import png_bytes
     from planning.qfile import load_q
     from planning.world import World
-    from retarget import sah
 
     if not (0.05 <= args.step_deg <= 20.0):
         raise InputError(f"--step-deg: expected 0.05..20 deg, found {args.step_deg}")
