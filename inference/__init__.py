@@ -1,8 +1,17 @@
-"""The variation model: a GTSAM factor graph over the object pose and the hand trajectory (paper V-VII)."""
+"""The variation model (paper sections V-VI): a GTSAM factor graph over the object pose and the hand
+trajectory, solved in a scene, its marginals P(X_t | O) and the mixture P(Y) sampled from them.
 
-from .model import VariationModel, build_graph, factor_covariances, initial_values, solve
+Modules: :mod:`~inference.params` (parameters, YAML), :mod:`~inference.factors` (the factors),
+:mod:`~inference.graph` (the graph), :mod:`~inference.joint_limits` (joint limits by expectation
+propagation), :mod:`~inference.solve` (relinearization and marginals), :mod:`~inference.model` (the
+result and its ``.model.npz`` file), :mod:`~inference.sampler` (P(Y)).
+"""
+
+from .graph import build_graph, factor_covariances, initial_values
+from .model import VariationModel
 from .params import VariationParams
 from .sampler import MixtureSample, MixtureSampler, sample, sample_marginal, sample_object
+from .solve import solve
 
 __all__ = [
     "MixtureSample",

@@ -318,6 +318,6 @@ def modeling_covariance(
 
 
 def _sah_fingertip_map(T_object_wrist: np.ndarray, joints: np.ndarray, cov12: np.ndarray) -> np.ndarray:
-    from retarget import sah  # imported late: the SAH model is only needed for the default mapping
+    from assets import sah  # imported late: the SAH model is only needed for the default mapping
 
     return sah.config_cov_from_fingertip_cov(sah.fingertip_jacobian(T_object_wrist, joints), cov12)

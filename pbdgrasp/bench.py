@@ -5,7 +5,7 @@ Each measurement is a function returning a plain ``dict`` (JSON-ready); :func:`r
 said otherwise; they are figures of this machine (:func:`machine_info`), never asserted in tests.
 
 * inference: graph + Gauss-Newton + all conditional marginals of a synthetic T-step trajectory
-  (:func:`inference.model.solve`), and the marginals alone by ``gtsam.Marginals`` beside the dense
+  (:func:`inference.solve.solve`), and the marginals alone by ``gtsam.Marginals`` beside the dense
   reference (the information matrix at the solution, ``hessian`` with an explicit ordering, inverted by
   numpy), with the largest relative difference of the two as a check; T = 100 again with linearized
   constraint factors (an analytic height constraint, so the figure is the graph's and not pybullet's);
@@ -183,7 +183,7 @@ def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
 
 def _dense_marginals(graph, values, n: int) -> np.ndarray:
     """(T, 19, 19) marginals of (W_t, J_t) from the dense inverse of the information matrix."""
-    from inference.model import key_j, key_w
+    from inference.graph import key_j, key_w
 
     order = gtsam.Ordering()
     for t in range(n):
@@ -204,8 +204,9 @@ def bench_inference(
         ``{"rows": [{T, solve_ms, marginals_ms, dense_ms, dense_over_gtsam, max_rel_diff}], "constrained":
         {T, solve_ms, iterations, constrained_steps}}``.
     """
-    from inference.model import _conditional_marginals, build_graph, factor_covariances, initial_values, solve
+    from inference.graph import build_graph, factor_covariances, initial_values
     from inference.params import VariationParams
+    from inference.solve import conditional_marginals, solve
 
     rng = rng or np.random.default_rng(0)
     params = VariationParams()
@@ -217,7 +218,7 @@ def bench_inference(
         graph = build_graph(traj, params, factor_covariances(traj, params), mu_o, None, fixed_object=True)
         values = gtsam.GaussNewtonOptimizer(graph, initial_values(traj, mu_o, fixed_object=True)).optimize()
         marg_s, (_, _, cov_g) = _timed(
-            lambda g=graph, v=values, n=n, mu=mu_o: _conditional_marginals(g, v, mu, n), repeats
+            lambda g=graph, v=values, n=n, mu=mu_o: conditional_marginals(g, v, mu, n), repeats
         )
         dense_s, cov_d = _timed(lambda g=graph, v=values, n=n: _dense_marginals(g, v, n), repeats)
         rel = float(np.max(np.abs(cov_g - cov_d)) / np.max(np.abs(cov_d)))
@@ -390,7 +391,7 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
 
 def _quick_model():
     """A ham strategy built in code: a 30-step top-down approach to :data:`HAM_GRASP_Q`, small Sigma_r."""
-    from inference.model import solve
+    from inference.solve import solve
     from retarget.trajectory import Trajectory
 
     traj = synthetic_trajectory(30, np.random.default_rng(0))

@@ -19,8 +19,9 @@ import numpy as np
 
 from assets.sah import JOINT_LIMITS
 from assets.se3 import pose_from_q, q_from_pose
-from inference.model import VariationModel, solve
+from inference.model import VariationModel
 from inference.params import VariationParams
+from inference.solve import solve
 from planning.scene import Scene
 from planning.world import World
 from retarget.demonstration import Demonstration

@@ -126,10 +126,10 @@ class Trajectory:
     def num_steps(self) -> int:
         return self.T_object_wrist.shape[0]
 
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the ``.traj.npz`` file atomically."""
-        return atomic_savez(
-            path,
+    def arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The ``.traj.npz`` keys and arrays (see the module docstring), each key prefixed by ``prefix``
+        (a ``.model.npz`` embeds its source trajectory under ``traj_``)."""
+        arrays = dict(
             T_object_wrist=self.T_object_wrist,
             joints=self.joints,
             cov_retarget=self.cov_retarget,
@@ -141,6 +141,46 @@ class Trajectory:
             grasp_type=np.str_(self.grasp_type),
             meta_json=np.str_(json.dumps(self.meta, sort_keys=True)),
         )
+        return {prefix + k: v for k, v in arrays.items()}
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the ``.traj.npz`` file atomically."""
+        return atomic_savez(path, **self.arrays())
+
+    @classmethod
+    def from_arrays(cls, d, path: str | os.PathLike | None = None, prefix: str = "") -> Trajectory:
+        """The trajectory held by the arrays ``d`` (a mapping of ``prefix + key`` to arrays, as
+        :meth:`arrays` makes them).
+
+        Raises:
+            InputError: a key is missing, or a value is invalid.
+        """
+        missing = [prefix + k for k in _KEYS if prefix + k not in d]
+        if missing:
+            raise InputError(f"missing keys {missing}", path)
+        g = {k: d[prefix + k] for k in (*_KEYS, "meta_json") if prefix + k in d}
+        try:
+            meta = json.loads(str(g["meta_json"])) if "meta_json" in g else {}
+            if not isinstance(meta, dict):
+                raise ValueError("not an object")
+        except ValueError as exc:
+            raise InputError(f"{prefix}meta_json: not a JSON object ({exc})", path) from None
+        for key in ("object", "grasp_type", "dt_s"):
+            if g[key].ndim != 0:
+                raise InputError(f"{prefix}{key}: expected a scalar, found shape {g[key].shape}", path)
+        return cls(
+            T_object_wrist=g["T_object_wrist"],
+            joints=g["joints"],
+            cov_retarget=g["cov_retarget"],
+            fingertip_rmse_mm=g["fingertip_rmse_mm"],
+            T_world_object_mean=g["T_world_object_mean"],
+            cov_object=g["cov_object"],
+            dt_s=g["dt_s"].item() if g["dt_s"].dtype.kind in "fiu" else str(g["dt_s"]),
+            object=str(g["object"]),
+            grasp_type=str(g["grasp_type"]),
+            meta=meta,
+            path=None if path is None else str(path),
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Trajectory:
@@ -149,26 +189,4 @@ class Trajectory:
         Raises:
             InputError: the file is unreadable, lacks a key, or holds invalid values.
         """
-        d = load_npz(path, required=_KEYS)
-        try:
-            meta = json.loads(str(d["meta_json"])) if "meta_json" in d else {}
-            if not isinstance(meta, dict):
-                raise ValueError("not an object")
-        except ValueError as exc:
-            raise InputError(f"meta_json: not a JSON object ({exc})", path) from None
-        for key in ("object", "grasp_type", "dt_s"):
-            if d[key].ndim != 0:
-                raise InputError(f"{key}: expected a scalar, found shape {d[key].shape}", path)
-        return cls(
-            T_object_wrist=d["T_object_wrist"],
-            joints=d["joints"],
-            cov_retarget=d["cov_retarget"],
-            fingertip_rmse_mm=d["fingertip_rmse_mm"],
-            T_world_object_mean=d["T_world_object_mean"],
-            cov_object=d["cov_object"],
-            dt_s=d["dt_s"].item() if d["dt_s"].dtype.kind in "fiu" else str(d["dt_s"]),
-            object=str(d["object"]),
-            grasp_type=str(d["grasp_type"]),
-            meta=meta,
-            path=str(path),
-        )
+        return cls.from_arrays(load_npz(path, required=_KEYS), path)

@@ -9,8 +9,8 @@ import numpy as np
 
 from assets import sah
 from assets.se3 import pose_from_q, se3_inverse
-from inference.model import solve
-from planning import bench
+from inference.solve import solve
+from pbdgrasp import bench
 from planning.scene import load_scene
 from retarget.trajectory import Trajectory
 

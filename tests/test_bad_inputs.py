@@ -146,7 +146,7 @@ GOOD_ARCHIVES = {
 
 @pytest.fixture(scope="module")
 def good_model_archive(tmp_path_factory):
-    from inference.model import solve
+    from inference.solve import solve
 
     path = tmp_path_factory.mktemp("m") / "good.model.npz"
     solve(Trajectory.load(GOOD_TRAJ)).save(path)

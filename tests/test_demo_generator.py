@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import assets
-from assets import demo_generator as gen
 from assets import human_hand as hand
+from assets.demonstrations import generate as gen
 from retarget.demonstration import Demonstration
 
 CONTACT_TOL_MM = 2.0  # fingertip sphere to surface, at the last step
@@ -122,7 +122,7 @@ PINNED_KERNELS = {"OPENBLAS_CORETYPE": "Haswell", "NPY_DISABLE_CPU_FEATURES": "X
 _REGENERATE = """
 import sys
 import numpy as np
-from assets import demo_generator as gen
+from assets.demonstrations import generate as gen
 demo, report = gen.generate(sys.argv[1], gen.object_rng(sys.argv[1], 0), seed=0)
 np.savez(sys.argv[2], joints=demo.joints, T_object_wrist=demo.T_object_wrist,
          tip_gap_mm=report.tip_gap_mm, penetration_mm=report.max_penetration_trajectory_mm)

@@ -11,7 +11,7 @@ from test_inference_factors import _standin_map, numerical_jacobian
 from assets.errors import InputError
 from assets.se3 import local, se3_exp
 from inference import VariationModel, VariationParams, build_graph, factor_covariances, initial_values, solve
-from inference.model import key_j, key_o, key_w
+from inference.graph import key_j, key_o, key_w
 from retarget.trajectory import Trajectory
 
 REL_TOL_EXACT = 1e-9  # linear-Gaussian parts: closed form vs GTSAM
@@ -557,7 +557,7 @@ def test_truncated_normal_moments_equal_scipys():
     30 sigma of the mean, one- and two-sided."""
     from scipy.stats import truncnorm
 
-    from inference.model import truncated_normal_moments
+    from inference.joint_limits import truncated_normal_moments
 
     rng = np.random.default_rng(0)
     a = rng.uniform(-30, 30, 5000)

@@ -329,23 +329,23 @@ def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
 
 
 def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
-    from planning import table1
+    from pbdgrasp import table1
 
-    (tmp_path / "retarget").mkdir()
-    (tmp_path / "retarget" / "retargeting.py").write_text("x = 1\n")
-    (tmp_path / "retarget" / "demo_generator.py").write_text("y = 1\n")
+    (tmp_path / "assets" / "demonstrations").mkdir(parents=True)
+    (tmp_path / "assets" / "sah.py").write_text("x = 1\n")
+    (tmp_path / "assets" / "demonstrations" / "generate.py").write_text("y = 1\n")
     monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
-    before = table1._source_digest(("retarget",))
-    (tmp_path / "retarget" / "demo_generator.py").write_text("y = 2\n")  # writes files that are hashed
-    assert table1._source_digest(("retarget",)) == before
-    (tmp_path / "retarget" / "retargeting.py").write_text("x = 2\n")
-    assert table1._source_digest(("retarget",)) != before
+    before = table1._source_digest(("assets",))
+    (tmp_path / "assets" / "demonstrations" / "generate.py").write_text("y = 2\n")  # writes hashed files
+    assert table1._source_digest(("assets",)) == before
+    (tmp_path / "assets" / "sah.py").write_text("x = 2\n")
+    assert table1._source_digest(("assets",)) != before
 
 
 def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, monkeypatch):
     """Retargeting's d6 runs the pybullet world: an edit of planning/world.py must change the trajectory's
     source digest (it did not before 2026-12-01, so stale trajectories were reused)."""
-    from planning import table1
+    from pbdgrasp import table1
 
     for rel in ("retarget/retargeting.py", "pbdgrasp/strategy.py", "planning/world.py"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -360,7 +360,7 @@ def test_the_source_digest_follows_the_code_not_its_docstrings_or_comments(tmp_p
     """A docstring, a comment or a re-wrapped line recomputes nothing (a docstring edit of
     pbdgrasp/strategy.py once re-ran every retargeting); any change of the code does, a string constant
     that is not a docstring included."""
-    from planning import table1
+    from pbdgrasp import table1
 
     src = tmp_path / "retarget" / "step.py"
     src.parent.mkdir()

@@ -3,7 +3,7 @@
 Without ``--scene`` the object prior is the trajectory's and the only constraint factors are the SAH's
 joint limits. With it, the object prior is the scene's object pose and localization covariance, and the
 signed distance of the hand to the scene's table, obstacles and object (pybullet closest points) is also
-a constraint phi of the linearized constraint factors (see :mod:`inference.model`).
+a constraint phi of the linearized constraint factors (see :mod:`inference.solve`).
 """
 
 from __future__ import annotations

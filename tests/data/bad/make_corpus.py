@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 import assets
-from inference.model import solve
+from inference.solve import solve
 from pbdgrasp.bench import synthetic_trajectory
 
 HERE = Path(__file__).resolve().parent

@@ -1,0 +1,165 @@
+"""The variation model's factor graph (paper section V): its keys, its factors' covariances, the graph and
+its starting point.
+
+The graph is P(O) P(X_1..X_T | O): an SE(3) prior O ~ N(mu_o, Sigma_o) (``PriorFactorPose3``), per step
+the demonstration factor f_1t tying (O, W_t, J_t) to tau_r(t) with Sigma_r(t) + Sigma_m(t), the
+smoothness factors f_2t between consecutive steps and, for the steps in ``linearizations``, the
+linearized constraint factors f_3t/f_4t (:mod:`inference.factors`). With ``fixed_object`` the object is
+held at mu_o: the graph of P(X | O = mu_o), whose ``gtsam.Marginals`` are the conditional marginals
+(equal to the Schur complement of the full graph's joint covariance; tests compare both). Variables:
+``W_t`` wrist pose in the world frame (``Pose3``), ``J_t`` the 13 joints (vector), ``C_t`` a constrained
+step's constraint values (vector).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from assets.errors import InputError
+from retarget.trajectory import Trajectory
+
+from .factors import (
+    FingertipMap,
+    constraint_factors,
+    demonstration_factors,
+    modeling_covariance,
+    smoothness_factors,
+)
+from .params import VariationParams
+
+__all__ = [
+    "key_o",
+    "key_w",
+    "key_j",
+    "key_c",
+    "factor_covariances",
+    "build_graph",
+    "initial_values",
+    "means_of",
+]
+
+
+def key_o() -> int:
+    """GTSAM key of the object pose O."""
+    return gtsam.symbol("o", 0)
+
+
+def key_w(t: int) -> int:
+    """GTSAM key of the wrist pose W_t (world frame)."""
+    return gtsam.symbol("w", t)
+
+
+def key_j(t: int) -> int:
+    """GTSAM key of the joints J_t."""
+    return gtsam.symbol("j", t)
+
+
+def key_c(t: int) -> int:
+    """GTSAM key of the constraint value C_t."""
+    return gtsam.symbol("c", t)
+
+
+def factor_covariances(
+    traj: Trajectory, params: VariationParams, fingertip_map: FingertipMap | None = None
+) -> np.ndarray:
+    """Sigma_r(t) + Sigma_m(t) (T, 19, 19), checked positive definite.
+
+    Raises:
+        InputError: the sum is not positive definite at some step (raise ``joint_floor_std_deg``).
+    """
+    cov = np.asarray(traj.cov_retarget) + modeling_covariance(
+        traj.T_object_wrist, traj.joints, traj.grasp_type, params, fingertip_map
+    )
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    eig_min = np.linalg.eigvalsh(cov).min(axis=-1)
+    if not np.all(eig_min > 0):
+        t = int(np.argmin(eig_min))
+        raise InputError(
+            f"Sigma_r + Sigma_m at step {t} is not positive definite (smallest eigenvalue "
+            f"{eig_min[t]:.3g}); raise joint_floor_std_deg or give sigma_m_std_config"
+        )
+    return cov
+
+
+def build_graph(
+    traj: Trajectory,
+    params: VariationParams,
+    cov_f1: np.ndarray,
+    T_world_object: np.ndarray,
+    cov_object: np.ndarray | None,
+    linearizations: dict | None = None,
+    fixed_object: bool = False,
+) -> gtsam.NonlinearFactorGraph:
+    """The factor graph P(O) P(X_1..X_T | O) (and the constraint factors of ``linearizations``).
+
+    Args:
+        traj: tau_r and Sigma_r.
+        params: parameters (smoothness, constraint noise).
+        cov_f1: (T, 19, 19) Sigma_r + Sigma_m (:func:`factor_covariances`).
+        T_world_object: (4, 4) mu_o. cov_object: (6, 6) Sigma_o ``[omega, v]``.
+        linearizations: ``{t: (T_world_wrist0, joints0, phi0 (m,), grad (m, 19), r_t (m,))}`` for constrained
+            steps (scalars and (19,) for one constraint).
+        fixed_object: hold O fixed at ``T_world_object`` (the graph of P(X | O = mu_o); no O variable, no
+            prior, ``cov_object`` unused).
+    """
+    graph = gtsam.NonlinearFactorGraph()
+    T_world_object = np.asarray(T_world_object, dtype=float)
+    if not fixed_object:
+        graph.add(
+            gtsam.PriorFactorPose3(
+                key_o(),
+                gtsam.Pose3(T_world_object),
+                gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_object, dtype=float)),
+            )
+        )
+    stds = params.smoothness_stds()
+    n = traj.num_steps
+    for t in range(n):
+        for f in demonstration_factors(
+            key_o(),
+            key_w(t),
+            key_j(t),
+            traj.T_object_wrist[t],
+            traj.joints[t],
+            cov_f1[t],
+            T_world_object if fixed_object else None,
+        ):
+            graph.add(f)
+        if t + 1 < n:
+            for f in smoothness_factors(key_w(t), key_w(t + 1), key_j(t), key_j(t + 1), stds):
+                graph.add(f)
+    for t, (T0, j0, phi0, grad, r_t) in (linearizations or {}).items():
+        for f in constraint_factors(
+            key_c(t),
+            key_w(t),
+            key_j(t),
+            T0,
+            j0,
+            phi0,
+            grad,
+            r_t,
+            params.constraint_std_mm * 1e-3,
+            params.constraint_delta_variance,
+        ):
+            graph.add(f)
+    return graph
+
+
+def initial_values(traj: Trajectory, T_world_object: np.ndarray, fixed_object: bool = False) -> gtsam.Values:
+    """The starting point ``O = mu_o, W_t = mu_o tau_r(t), J_t = joints_r(t)`` (no O if ``fixed_object``)."""
+    values = gtsam.Values()
+    if not fixed_object:
+        values.insert(key_o(), gtsam.Pose3(T_world_object))
+    T_world_wrist = T_world_object @ traj.T_object_wrist
+    for t in range(traj.num_steps):
+        values.insert(key_w(t), gtsam.Pose3(T_world_wrist[t]))
+        values.insert(key_j(t), np.array(traj.joints[t]))
+    return values
+
+
+def means_of(values: gtsam.Values, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The wrist poses W_t (T, 4, 4), world frame, and the joints J_t (T, 13) [rad] held by ``values``."""
+    W = np.stack([values.atPose3(key_w(t)).matrix() for t in range(n)])
+    J = np.stack([values.atVector(key_j(t)) for t in range(n)])
+    return W, J
