@@ -32,7 +32,7 @@ __all__ = [
     "object_metadata",
     "scenes",
     "scene_path",
-    "demonstrations",
+    "demonstration_names",
     "demonstration_path",
 ]
 
@@ -110,7 +110,7 @@ def scene_path(name_or_path: str | Path) -> Path:
     return ROOT / "scenes" / f"{_check('scene', str(name_or_path), scenes())}.yaml"
 
 
-def demonstrations() -> list[str]:
+def demonstration_names() -> list[str]:
     """Names of the shipped demonstrations."""
     return _names("demonstrations", "*.npz")
 
@@ -122,4 +122,6 @@ def demonstration_path(name_or_path: str | Path) -> Path:
         if not p.is_file():
             raise InputError("no such demonstration file", p)
         return p
-    return ROOT / "demonstrations" / f"{_check('demonstration', str(name_or_path), demonstrations())}.npz"
+    return (
+        ROOT / "demonstrations" / f"{_check('demonstration', str(name_or_path), demonstration_names())}.npz"
+    )

@@ -283,7 +283,7 @@ def load_scene(name_or_path: str | Path) -> Scene:
         position_std_mm=r.number(o["position_std_mm"], "object.position_std_mm", positive=True),
         rotation_std_deg=r.number(o["rotation_std_deg"], "object.rotation_std_deg", positive=True),
     )
-    strategies = sorted(set(DEMONSTRATED_OBJECTS) | set(assets.demonstrations()))
+    strategies = sorted(set(DEMONSTRATED_OBJECTS) | set(assets.demonstration_names()))
     obstacles = d.get("obstacles") or []
     if not isinstance(obstacles, list):
         r.fail("obstacles", f"expected a list, found {type(obstacles).__name__}")

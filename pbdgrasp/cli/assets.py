@@ -59,7 +59,7 @@ def _scenes() -> list[str]:
 
 def _demonstrations() -> list[str]:
     rows = []
-    for d in assets.demonstrations():
+    for d in assets.demonstration_names():
         path = assets.demonstration_path(d)
         try:
             with zipfile.ZipFile(path) as z:
@@ -74,7 +74,8 @@ def run(args) -> int:
     sections = {"hands": _hands, "objects": _objects, "scenes": _scenes, "demonstrations": _demonstrations}
     for kind in args.kind or list(sections):
         rows = sections[kind]()
-        count = len(assets.objects()) if kind == "objects" else len(getattr(assets, kind)())
+        names = {"hands": assets.hands, "objects": assets.objects, "scenes": assets.scenes}
+        count = len(names.get(kind, assets.demonstration_names)())
         print(f"{kind} ({count}):")
         print("\n".join(rows))
     return 0
