@@ -1,23 +1,9 @@
-"""A grasp-planning problem in one scene, and the planners that solve it (paper VII-VIII).
+"""A grasp-planning problem in one scene, and the planners that solve it (paper section VII).
 
 :class:`GraspPlanner` owns one pybullet :class:`~planning.world.World` (its own client), the collision
-checker, the hand closer (phi_o) and the learned strategies, and runs one planning query per call:
-
-* ``learned``: our :func:`~planning.rrt_connect.rrt_connect` with samples from the mixture P(Y)
-  (probability ``beta`` uniform, else a random time step's marginal of a random strategy); goal samples
-  are the draws of a strategy's last time step;
-* ``baseline``: the paper's "simple RRT": the same tree code with single-step EXTEND (no CONNECT) and
-  uniform samples, drawing its target from N(b_T, B_T) with probability ``goal_probability`` (0.1);
-* ``ompl``: OMPL's RRTConnect (:func:`~planning.ompl_peer.plan_ompl`) from the same roots, with a goal
-  region of N(b_T, B_T) draws whose quality reaches the threshold;
-* ``bidirectional`` (not in the paper): ``learned`` with goal trees
-  (:attr:`~planning.rrt_connect.PlannerConfig.goal_trees`): a collision-free last-step sample whose
-  phi_o reaches the threshold but which the start forest did not reach roots a goal tree, and the forests
-  grow towards each other as in OMPL's RRTConnect;
-* ``goal_region`` (not in the paper): ``bidirectional`` whose goal trees are also rooted at dedicated
-  draws of N(b_T, B_T) by OMPL's RRTConnect rule (up to :data:`GOAL_REGION_TRIES` draws per attempt, as
-  the ``ompl`` peer's goal region), so that it differs from ``ompl`` only in growing its trees towards
-  P(Y) instead of uniform samples: the paper's sampler, measured with the library planner's goal handling.
+checker, the hand closer (phi_o) and the learned strategies, and runs one planning query per call,
+with each planner an entry of the registry :data:`planning.planners.REGISTRY` (learned, baseline, ompl,
+bidirectional, goal_region; what each is and how it grows its trees and handles goals is written there).
 
 All of them root their trees at ``num_roots`` (100) collision-free draws of N(b_1, B_1), the first marginal,
 and use the same goal test: phi_o >= ``quality_threshold`` (0.05). Ours (learned and baseline) runs it
@@ -47,6 +33,7 @@ from .autograsp import AutoGraspConfig, HandCloser
 from .collision import CollisionChecker
 from .config_space import HandConfigSpace
 from .ompl_peer import plan_ompl
+from .planners import GOAL_REGION_TRIES, PLANNERS, PlannerSpec, planner_spec
 from .rrt_connect import PlannerConfig, PlanResult, rrt_connect
 from .scene import Scene, load_scene
 from .world import World
@@ -54,10 +41,6 @@ from .world import World
 __all__ = ["GOAL_REGION_TRIES", "PLANNERS", "PlanningSettings", "GraspPlanner"]
 
 log = logging.getLogger(__name__)
-
-# append only: trial seeds use the index
-PLANNERS = ("learned", "baseline", "ompl", "bidirectional", "goal_region")
-GOAL_REGION_TRIES = 20  # draws of N(b_T, B_T) per goal-root attempt (goal_region; the ompl peer's goal_tries)
 
 
 @dataclass(frozen=True)
@@ -94,8 +77,7 @@ class PlanningSettings:
     record_tree: bool = False
 
     def __post_init__(self):
-        if self.planner not in PLANNERS:
-            raise InputError(f"planner: expected one of {', '.join(PLANNERS)}, found {self.planner!r}")
+        planner_spec(self.planner)
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.goal_probability <= 1.0:
             raise InputError("beta and goal_probability must be probabilities in [0, 1]")
         if self.num_roots < 1 or self.time_limit_s <= 0 or self.max_nodes < 1 or self.sample_batch < 1:
@@ -211,7 +193,8 @@ class GraspPlanner:
             """One draw of N(b_T, B_T): the goal region of ``ompl`` and ``goal_region``."""
             return self.draw_marginal(1, 1, r)[0]
 
-        if settings.planner == "ompl":
+        spec = planner_spec(settings.planner)
+        if spec.engine == "ompl":
             result = plan_ompl(
                 roots,
                 draw_goal,
@@ -224,37 +207,20 @@ class GraspPlanner:
                 quality_threshold=settings.quality_threshold,
             )
         else:
-            if settings.planner in ("learned", "bidirectional", "goal_region"):
-                mixture = MixtureSampler(self.models, lo, hi, settings.beta, JOINT_LIMITS)
-
-                def draw(n, r):
-                    s = mixture.sample(n, r)
-                    return s.q, s.is_last & (s.strategy >= 0)
-
-            else:
-                uniform = MixtureSampler(self.models, lo, hi, 1.0, JOINT_LIMITS)
-
-                def draw(n, r):
-                    goal = r.random(n) < settings.goal_probability
-                    q = uniform.sample(n, r).q
-                    if goal.any():
-                        q[goal] = self.draw_marginal(1, int(goal.sum()), r)
-                    return q, goal
-
             config = PlannerConfig(
                 time_limit_s=settings.time_limit_s,
                 max_nodes=settings.max_nodes,
                 quality_threshold=settings.quality_threshold,
-                connect=settings.planner != "baseline",
-                goal_trees=settings.planner in ("bidirectional", "goal_region"),
-                goal_region_tries=GOAL_REGION_TRIES if settings.planner == "goal_region" else 0,
+                connect=spec.connect,
+                goal_trees=spec.goal_trees,
+                goal_region_tries=spec.goal_region_tries,
                 goal_radius=settings.goal_radius,
                 score_stalled=settings.score_stalled,
                 record_tree=settings.record_tree,
             )
             result = rrt_connect(
                 roots,
-                _Buffered(draw, settings.sample_batch),
+                _Buffered(self._sample_draw(spec, settings), settings.sample_batch),
                 self.checker.is_edge_free,
                 self.quality,
                 self.space,
@@ -268,3 +234,25 @@ class GraspPlanner:
             collision_checks=self.checker.checks - checks_before,
             extra=dict(result.extra, roots=len(roots)),
         )
+
+    def _sample_draw(self, spec: PlannerSpec, settings: PlanningSettings):
+        """The vectorized ``draw(n, rng) -> (q (n, 19), is_goal (n,))`` of a planner's ``samples``."""
+        lo, hi = self.bounds
+        if spec.samples == "mixture":
+            mixture = MixtureSampler(self.models, lo, hi, settings.beta, JOINT_LIMITS)
+
+            def draw(n, r):
+                s = mixture.sample(n, r)
+                return s.q, s.is_last & (s.strategy >= 0)
+
+            return draw
+        uniform = MixtureSampler(self.models, lo, hi, 1.0, JOINT_LIMITS)
+
+        def draw(n, r):
+            goal = r.random(n) < settings.goal_probability
+            q = uniform.sample(n, r).q
+            if goal.any():
+                q[goal] = self.draw_marginal(1, int(goal.sum()), r)
+            return q, goal
+
+        return draw
