@@ -360,7 +360,7 @@ def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
 def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
     """The learned strategy of a scene by the real pipeline, from the Table I cache.
 
-    :func:`pbdgrasp.table1.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
+    :func:`pbdgrasp.cache.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
     step: the scene's demonstration retargeted in the demonstrated object's own scene, solved with the
     scene's object prior and constraints, each step cached by the hash of its inputs.
 
@@ -371,7 +371,7 @@ def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
     from inference.model import VariationModel
     from retarget.trajectory import Trajectory
 
-    from .table1 import prepare_strategy
+    from .cache import prepare_strategy
 
     t0 = time.perf_counter()
     strategy = prepare_strategy(scene_name, cache_dir, retarget_max_nfev=max_nfev)

@@ -131,3 +131,52 @@ def load_trials(conn: sqlite3.Connection, rows: list[str] | None = None) -> list
 def params_json(params: dict) -> str:
     """Canonical JSON of a run's parameters (sorted keys)."""
     return json.dumps(params, sort_keys=True)
+
+
+def record_from_plan(
+    result,
+    *,
+    row: str,
+    planner: str,
+    trial: int,
+    seed: int,
+    git_commit: str,
+    params_json: str,
+    eta_s: float | None = None,
+) -> TrialRecord:
+    """The :class:`TrialRecord` of one planning query's :class:`~planning.rrt_connect.PlanResult`.
+
+    Args:
+        result: the query's result.
+        row, planner, trial, seed, git_commit, params_json: the trial's key and provenance.
+        eta_s: the query's wall time [s] as measured by the caller; default the planner's own
+            ``result.eta_s``.
+
+    The grasp column holds the closed grasp (``closed_q``, ``quality``, ``contact_links``) of the best
+    phi_o evaluation and, for a solved trial, the path's last configuration ``q`` (19,) [m, rad].
+    """
+    grasp: dict = {}
+    if result.grasp is not None:
+        grasp = {
+            "closed_q": [float(x) for x in result.grasp.closed_q],
+            "quality": float(result.grasp.quality),
+            "contact_links": list(result.grasp.contact_links),
+        }
+    if result.success and len(result.path):
+        grasp["q"] = [float(x) for x in result.path[-1]]
+    return TrialRecord(
+        row=row,
+        planner=planner,
+        trial=int(trial),
+        seed=int(seed),
+        success=bool(result.success),
+        eta_s=float(result.eta_s if eta_s is None else eta_s),
+        nodes=int(result.nodes),
+        quality=float(result.quality),
+        collision_checks=int(result.extra.get("collision_checks_total", result.collision_checks)),
+        quality_evaluations=int(result.quality_evaluations),
+        message=result.message,
+        git_commit=git_commit,
+        params_json=params_json,
+        grasp_json=json.dumps(grasp),
+    )

@@ -6,9 +6,8 @@ For every row (a scene of the same name, :data:`pbdgrasp.paper.ROWS`):
    cup the small cup's) is retargeted to the SAH with the collision term checked in the demonstrated
    object's obstacle-free scene, as ``pbdgrasp retarget`` does, and the variation model is solved with the
    row's scene (its object prior and the signed-distance constraints of its table and obstacles), as
-   ``pbdgrasp infer --scene`` does. Both steps are cached under ``cache_dir`` by the SHA-256 of their
-   inputs (demonstration file, scene, object and hand files, settings, the Python sources of the step,
-   a format version), so a re-run computes nothing twice and an edited input or code is recomputed.
+   ``pbdgrasp infer --scene`` does; both steps cached by the hash of their inputs
+   (:mod:`pbdgrasp.cache`).
 2. the trials: ``trials`` planning queries per planner, each with its own generator
    ``np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(row index in ROWS, planner index in
    PLANNERS, trial)))``, so results do not depend on the number of workers or on the order they run in.
@@ -23,25 +22,22 @@ between processes). The coordinating process writes each finished trial to the S
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import dataclasses
-import hashlib
 import json
 import logging
 import os
-import platform
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-import assets
 from assets.errors import InputError
 from planning.grasp_planner import PLANNERS, PlanningSettings
 
+from .cache import Strategy, prepare_strategy
 from .paper import ROWS
 from .results_db import (
     TrialRecord,
@@ -50,28 +46,22 @@ from .results_db import (
     load_trials,
     open_db,
     params_json,
+    record_from_plan,
     source_commit,
 )
 
 __all__ = [
     "Table1Config",
-    "Strategy",
     "TrialTask",
     "RunSummary",
     "parse_names",
     "trial_rng",
-    "prepare_strategy",
-    "strategy_final_q",
     "make_tasks",
     "run_trial",
     "run_table1",
-    "float_kernels",
 ]
 
 log = logging.getLogger(__name__)
-
-CACHE_VERSION = 1
-"""Bump to invalidate every cached trajectory and model (a change of the pipeline's code)."""
 
 
 @dataclass(frozen=True)
@@ -157,193 +147,6 @@ def trial_rng(seed: int, row: str, planner: str, trial: int) -> np.random.Genera
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
 
 
-# -- the strategy pipeline (cached) ------------------------------------------------------------------
-def _sha256_file(path: str | os.PathLike) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def _digest(parts: Iterable[str]) -> str:
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(p.encode())
-        h.update(b"\0")
-    return h.hexdigest()
-
-
-_PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-#: The code each cached step runs. Retargeting checks d6 in a pybullet world, so the world's code is part
-#: of its key too (it was not before 2026-12-01: an edit of world.py reused stale trajectories).
-RETARGET_SOURCES = (
-    "retarget",
-    "pbdgrasp/strategy.py",
-    "planning/world.py",
-    "planning/scene.py",
-    "planning/_pybullet.py",
-)
-#: Sources inside those folders that no cached step runs: the demonstration generator only writes the
-#: demonstration files, whose contents are part of the retargeting key.
-UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
-MODEL_SOURCES = (
-    "inference",
-    "planning/world.py",
-    "planning/scene.py",
-    "planning/_pybullet.py",
-    "pbdgrasp/strategy.py",
-)
-
-
-def float_kernels() -> str:
-    """The floating-point kernels this process computes with: the machine and the two variables that pin
-    numpy's and OpenBLAS's kernels (the Makefile sets them on x86-64). Part of every cache key: the
-    retargeting's result depends on them (chips' MSE 856 mm^2 with AVX2 kernels, 988 with AVX-512)."""
-    pins = (f"{k}={os.environ.get(k, '')}" for k in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES"))
-    return " ".join([platform.machine(), *pins])
-
-
-def _source_digest(entries: Sequence[str]) -> str:
-    """SHA-256 of the Python sources a cached step runs (folders or files relative to the package root),
-    each by its code (:func:`_code_digest`): an edit of a docstring, a comment or the layout recomputes
-    nothing."""
-    files: list[Path] = []
-    for e in entries:
-        p = _PACKAGE_ROOT / e
-        files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
-    files = [f for f in files if f.relative_to(_PACKAGE_ROOT).as_posix() not in UNCACHED_SOURCES]
-    return _digest(f"{f.relative_to(_PACKAGE_ROOT)}:{_code_digest(f)}" for f in files if f.is_file())
-
-
-def _code_digest(path: Path) -> str:
-    """SHA-256 of a Python file's syntax tree without docstrings (comments and layout are not in the tree);
-    of its bytes if it does not parse. The tree's dump may differ between Python versions, which then
-    recompute the cache once."""
-    try:
-        tree = ast.parse(path.read_bytes())
-    except (SyntaxError, ValueError):
-        return _sha256_file(path)
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (
-            isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
-            and body
-            and isinstance(body[0], ast.Expr)
-            and isinstance(body[0].value, ast.Constant)
-            and isinstance(body[0].value.value, str)
-        ):
-            node.body = body[1:] or [ast.Pass()]
-    return hashlib.sha256(ast.dump(tree).encode()).hexdigest()
-
-
-def _scene_files(scene) -> list[Path]:
-    """Every file a scene's geometry comes from: the YAML, its object, object obstacles and meshes."""
-
-    def object_files(name: str) -> list[Path]:
-        return [assets.object_urdf(name), assets.object_mesh(name), assets.object_collision_mesh(name)]
-
-    files = [Path(scene.path), *object_files(scene.object.name)]
-    for ob in scene.obstacles:
-        if ob.type == "object":
-            files += object_files(ob.name)
-        elif ob.type == "mesh":
-            files += [Path(ob.file)] + ([Path(ob.collision_file)] if ob.collision_file else [])
-    return files + [assets.hand_urdf(scene.hand)]
-
-
-@dataclass(frozen=True)
-class Strategy:
-    """The learned strategy of one row: its cached files and the retargeting error.
-
-    Attributes:
-        row: the Table I row (scene).
-        demonstration: the demonstration used (``Scene.strategy``).
-        trajectory_path: the cached ``.traj.npz`` (tau_r, Sigma_r(t)).
-        model_path: the cached ``.model.npz`` (the marginals, with the row's scene prior and constraints).
-        model_sha256: the model file's hash (keys the workers' planner cache).
-        mse_mm2: the retargeting fingertip MSE, mean over steps of the per-step mean square [mm^2].
-    """
-
-    row: str
-    demonstration: str
-    trajectory_path: Path
-    model_path: Path
-    model_sha256: str
-    mse_mm2: float
-
-
-def prepare_strategy(
-    row: str,
-    cache_dir: str | os.PathLike,
-    progress: bool | None = False,
-    retarget_max_nfev: int | None = None,
-) -> Strategy:
-    """Demonstration -> retargeting -> inference for one row, each step cached by the hash of its inputs.
-
-    Args:
-        row: a Table I row (scene name).
-        cache_dir: the cache folder (created if missing).
-        progress: the retargeting's tqdm bar.
-        retarget_max_nfev: see :class:`Table1Config`.
-
-    Returns:
-        The :class:`Strategy` with the cached file paths.
-    """
-    from inference import VariationParams
-    from planning.scene import load_scene
-    from retarget.demonstration import Demonstration
-    from retarget.retargeting import RetargetConfig
-    from retarget.trajectory import Trajectory
-
-    from .strategy import learn_in_scene, retarget_in_scene
-
-    cache = Path(cache_dir)
-    cache.mkdir(parents=True, exist_ok=True)
-    scene = load_scene(row)
-    demo_path = assets.demonstration_path(scene.strategy)
-    demo = Demonstration.load(demo_path)
-    demo_scene = load_scene(demo.object)
-    config = RetargetConfig() if retarget_max_nfev is None else RetargetConfig(max_nfev=retarget_max_nfev)
-    traj_key = _digest(
-        [
-            f"retarget v{CACHE_VERSION}",
-            _source_digest(RETARGET_SOURCES),
-            float_kernels(),
-            _sha256_file(demo_path),
-            repr(config),
-        ]
-        + [_sha256_file(assets.hand_urdf(h)) for h in ("sah", "human")]
-        + [_sha256_file(f) for f in _scene_files(demo_scene)]
-    )
-    traj_path = cache / f"{scene.strategy}-{traj_key[:16]}.traj.npz"
-    if not traj_path.is_file():
-        log.info("retargeting %s (cache miss) -> %s", scene.strategy, traj_path)
-        traj, _ = retarget_in_scene(demo, demo_scene, config, progress=bool(progress))
-        traj.save(traj_path)
-    traj = Trajectory.load(traj_path)
-    params = VariationParams()
-    model_key = _digest(
-        [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), float_kernels(), _sha256_file(traj_path)]
-        + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]
-        + [_sha256_file(f) for f in _scene_files(scene)]
-    )
-    model_path = cache / f"{row}-{model_key[:16]}.model.npz"
-    if not model_path.is_file():
-        log.info("inferring the variation model of %s (cache miss) -> %s", row, model_path)
-        model = learn_in_scene(traj, scene, params)
-        model.save(model_path)
-    mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))
-    return Strategy(row, scene.strategy, traj_path, model_path, _sha256_file(model_path), mse_mm2)
-
-
-def strategy_final_q(strategy: Strategy) -> np.ndarray:
-    """The strategy's mean final configuration (19,) in the row's world (for pictures)."""
-    from assets.se3 import q_from_pose
-    from inference.model import VariationModel
-    from planning.scene import load_scene
-
-    model = VariationModel.load(strategy.model_path)
-    T_world_wrist = load_scene(strategy.row).T_world_object @ model.T_object_wrist_mean[-1]
-    return np.concatenate([q_from_pose(T_world_wrist), model.joints_mean[-1]])
-
-
 # -- trials ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TrialTask:
@@ -427,30 +230,15 @@ def run_trial(task: TrialTask) -> TrialRecord:
     start = time.perf_counter()
     res = gp.plan(rng, task.settings)
     elapsed = time.perf_counter() - start
-    grasp = {}
-    if res.grasp is not None:
-        grasp = {
-            "closed_q": [float(x) for x in res.grasp.closed_q],
-            "quality": float(res.grasp.quality),
-            "contact_links": list(res.grasp.contact_links),
-        }
-    if res.success and len(res.path):
-        grasp["q"] = [float(x) for x in res.path[-1]]
-    return TrialRecord(
+    return record_from_plan(
+        res,
         row=task.row,
         planner=task.planner,
         trial=task.trial,
         seed=task.seed,
-        success=bool(res.success),
-        eta_s=float(elapsed),
-        nodes=int(res.nodes),
-        quality=float(res.quality),
-        collision_checks=int(res.extra.get("collision_checks_total", res.collision_checks)),
-        quality_evaluations=int(res.quality_evaluations),
-        message=res.message,
         git_commit=task.git_commit,
         params_json=task.params_json,
-        grasp_json=json.dumps(grasp),
+        eta_s=elapsed,
     )
 
 

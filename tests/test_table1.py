@@ -169,7 +169,7 @@ def test_strategy_cache_keys_follow_the_hand_model(tmp_path, monkeypatch, caplog
 
     def missed_path() -> str:
         caplog.clear()
-        with caplog.at_level("INFO", logger="pbdgrasp.table1"), pytest.raises(CacheMiss):
+        with caplog.at_level("INFO", logger="pbdgrasp.cache"), pytest.raises(CacheMiss):
             prepare_strategy("ham", tmp_path / "cache")
         (line,) = [r.getMessage() for r in caplog.records if "cache miss" in r.getMessage()]
         return line.split("-> ")[1]
@@ -329,7 +329,7 @@ def test_sigkill_mid_run_resumes_without_losing_or_repeating_trials(quick_run):
 
 
 def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
-    from pbdgrasp import table1
+    from pbdgrasp import cache as table1
 
     (tmp_path / "assets" / "demonstrations").mkdir(parents=True)
     (tmp_path / "assets" / "sah.py").write_text("x = 1\n")
@@ -345,7 +345,7 @@ def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
 def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, monkeypatch):
     """Retargeting's d6 runs the pybullet world: an edit of planning/world.py must change the trajectory's
     source digest (it did not before 2026-12-01, so stale trajectories were reused)."""
-    from pbdgrasp import table1
+    from pbdgrasp import cache as table1
 
     for rel in ("retarget/retargeting.py", "pbdgrasp/strategy.py", "planning/world.py"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -360,7 +360,7 @@ def test_the_source_digest_follows_the_code_not_its_docstrings_or_comments(tmp_p
     """A docstring, a comment or a re-wrapped line recomputes nothing (a docstring edit of
     pbdgrasp/strategy.py once re-ran every retargeting); any change of the code does, a string constant
     that is not a docstring included."""
-    from pbdgrasp import table1
+    from pbdgrasp import cache as table1
 
     src = tmp_path / "retarget" / "step.py"
     src.parent.mkdir()

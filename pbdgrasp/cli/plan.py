@@ -47,7 +47,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from assets.errors import InputError
-    from pbdgrasp.results_db import TrialRecord, finished_keys, insert_trial, open_db, source_commit
+    from pbdgrasp.results_db import finished_keys, insert_trial, open_db, record_from_plan, source_commit
     from planning.grasp_planner import GraspPlanner, PlanningSettings
 
     if args.trials < 1:
@@ -79,24 +79,16 @@ def run(args) -> int:
             if res.success and (best is None or res.quality > best.quality):
                 best = res
             if conn:
-                closed = res.grasp.closed_q.tolist() if res.grasp is not None else None
                 insert_trial(
                     conn,
-                    TrialRecord(
+                    record_from_plan(
+                        res,
                         row=row,
                         planner=args.planner,
                         trial=trial,
                         seed=int(seeds[trial].generate_state(1)[0]),
-                        success=res.success,
-                        eta_s=res.eta_s,
-                        nodes=res.nodes,
-                        quality=res.quality,
-                        collision_checks=res.collision_checks,
-                        quality_evaluations=res.quality_evaluations,
-                        message=res.message,
                         git_commit=commit,
                         params_json=json.dumps(params, sort_keys=True),
-                        grasp_json=json.dumps({"closed_q": closed}),
                     ),
                 )
             bar.set_postfix(solved=f"{sum(r.success for r in results)}/{len(results)}")

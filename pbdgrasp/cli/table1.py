@@ -50,9 +50,10 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from pbdgrasp.cache import float_kernels, strategy_final_q
     from pbdgrasp.paper import ROWS
     from pbdgrasp.report import write_report
-    from pbdgrasp.table1 import Table1Config, float_kernels, parse_names, run_table1, strategy_final_q
+    from pbdgrasp.table1 import Table1Config, parse_names, run_table1
     from planning.grasp_planner import PLANNERS
 
     if args.workers is not None and args.workers < 0:
