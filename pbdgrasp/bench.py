@@ -1,8 +1,9 @@
-"""``pbdgrasp bench``: the figures the issues name, measured in one process (issue 9).
+"""``pbdgrasp bench``: the speed of every stage, measured in one process (docs/performance.md).
 
-Each measurement is a function returning a plain ``dict`` (JSON-ready); :func:`run_bench` runs them all and
-:func:`format_table` prints them. Timings use ``time.perf_counter`` and report the median of repeats unless
-said otherwise; they are figures of this machine (:func:`machine_info`), never asserted in tests.
+Each measurement is a function returning a plain ``dict`` (JSON-ready); :func:`run_bench` runs them all
+and :func:`pbdgrasp.cli.bench.format_table` prints them. Timings use ``time.perf_counter`` and report the
+median of repeats unless said otherwise; they are figures of this machine (:func:`machine_info`), never
+asserted in tests.
 
 * inference: graph + Gauss-Newton + all conditional marginals of a synthetic T-step trajectory
   (:func:`inference.solve.solve`), and the marginals alone by ``gtsam.Marginals`` beside the dense
@@ -40,11 +41,11 @@ import numpy as np
 
 from assets.errors import InputError
 
+from .bench_fixtures import HAM_GRASP_Q, quick_model, strategy_model, synthetic_trajectory
+
 __all__ = [
     "BenchConfig",
-    "HAM_GRASP_Q",
     "machine_info",
-    "synthetic_trajectory",
     "bench_inference",
     "bench_sampler",
     "bench_collision",
@@ -53,19 +54,9 @@ __all__ = [
     "bench_planning",
     "peak_memory",
     "run_bench",
-    "format_table",
 ]
 
 log = logging.getLogger(__name__)
-
-#: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.17), q (19,) [m, rad];
-#: the grasp of ``tests/test_autograsp.py``. The ham can (10 x 5.5 x 8 cm) stands upright at the origin;
-#: the fingers point down (hand z ~ world -z, tilted 25 deg towards -y), the palm faces +y (tilted 24 deg
-#: down); the opposed thumb (base 86 deg) is on the +y face, index and middle on the -y face (the ring
-#: passes beyond the can's end), low on the can. Fingers pre-flexed 0/10 deg, thumb 18/10 deg.
-HAM_GRASP_Q = (-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
-               1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745,
-               0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745)  # fmt: skip
 
 PLANNING_SCENES = ("ham", "chips_between_cans", "jam_hole")
 
@@ -147,40 +138,6 @@ def machine_info() -> dict:
 
 
 # -- inference -----------------------------------------------------------------------------------------
-def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
-    """A smooth T-step top-down approach on the ham scene with degenerate rank-6 Sigma_r(t).
-
-    Returns:
-        A :class:`retarget.trajectory.Trajectory` (T steps, precision grasp, the ham scene's prior).
-    """
-    from assets import sah
-    from assets.se3 import pose_from_q, se3_inverse
-    from planning.scene import load_scene
-    from retarget.trajectory import Trajectory
-
-    scene = load_scene("ham")
-    q = np.array(HAM_GRASP_Q)
-    T_object_grasp = se3_inverse(scene.T_world_object) @ pose_from_q(q)
-    s = np.linspace(0.0, 1.0, num_steps)
-    s = 10 * s**3 - 15 * s**4 + 6 * s**5
-    T = np.repeat(T_object_grasp[None], num_steps, axis=0)
-    T[:, 2, 3] += 0.15 * (1.0 - s)
-    joints = (1.0 - s)[:, None] * sah.rest_joints() + s[:, None] * q[6:]
-    A = rng.normal(size=(num_steps, 19, 6)) * 0.003
-    cov = A @ np.swapaxes(A, 1, 2)
-    return Trajectory(
-        T,
-        joints,
-        cov,
-        np.full(num_steps, 6.5),
-        scene.T_world_object,
-        scene.cov_object,
-        0.05,
-        "ham",
-        "precision",
-    )
-
-
 def _dense_marginals(graph, values, n: int) -> np.ndarray:
     """(T, 19, 19) marginals of (W_t, J_t) from the dense inverse of the information matrix."""
     from inference.graph import key_j, key_w
@@ -356,53 +313,6 @@ def bench_retargeting(num_steps: int = 6, max_nfev: int | None = None) -> dict:
     }
 
 
-# -- planning ------------------------------------------------------------------------------------------
-def strategy_model(scene_name: str, cache_dir: Path, max_nfev: int):
-    """The learned strategy of a scene by the real pipeline, from the Table I cache.
-
-    :func:`pbdgrasp.cache.prepare_strategy` with ``max_nfev`` Rosenbrock evaluations per retargeting
-    step: the scene's demonstration retargeted in the demonstrated object's own scene, solved with the
-    scene's object prior and constraints, each step cached by the hash of its inputs.
-
-    Returns:
-        ``(VariationModel, info dict)`` with the model file, the wall time of this call (about 0 on a
-        cache hit) and the retargeting and solve times recorded when the strategy was built.
-    """
-    from inference.model import VariationModel
-    from retarget.trajectory import Trajectory
-
-    from .cache import prepare_strategy
-
-    t0 = time.perf_counter()
-    strategy = prepare_strategy(scene_name, cache_dir, retarget_max_nfev=max_nfev)
-    elapsed = time.perf_counter() - t0
-    model = VariationModel.load(strategy.model_path)
-    traj = Trajectory.load(strategy.trajectory_path)
-    info = {
-        "model": str(strategy.model_path),
-        "prepare_s": elapsed,
-        "retarget_s": float(traj.meta.get("retarget_time_s", float("nan"))),
-        "infer_s": float(model.solve_time_s),
-        "retarget_rmse_mm": float(traj.meta.get("rmse_mm", float("nan"))),
-        "retarget_mse_mm2": strategy.mse_mm2,
-    }
-    return model, info
-
-
-def _quick_model():
-    """A ham strategy built in code: a 30-step top-down approach to :data:`HAM_GRASP_Q`, small Sigma_r."""
-    from inference.solve import solve
-    from retarget.trajectory import Trajectory
-
-    traj = synthetic_trajectory(30, np.random.default_rng(0))
-    cov = np.repeat((np.eye(19) * 1e-6)[None], traj.num_steps, axis=0)
-    traj = Trajectory(
-        traj.T_object_wrist, traj.joints, cov, traj.fingertip_rmse_mm, traj.T_world_object_mean,
-        traj.cov_object, traj.dt_s, traj.object, traj.grasp_type,
-    )  # fmt: skip
-    return solve(traj)
-
-
 def _planner_row(results) -> dict:
     ok = [r for r in results if r.success]
     total = sum(r.eta_s for r in results)
@@ -438,7 +348,7 @@ def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
 
             model, info = VariationModel.load(given[scene_name]), {"model": given[scene_name], "given": True}
         elif config.quick:
-            model, info = _quick_model(), {"model": "built in code (quick)"}
+            model, info = quick_model(), {"model": "built in code (quick)"}
         else:
             model, info = strategy_model(scene_name, config.cache_dir, config.retarget_max_nfev)
         seeds = seq.spawn(config.trials)
@@ -476,7 +386,7 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
     out = {"machine": machine_info(), "config": {k: str(v) for k, v in asdict(config).items()}}
     say("inference")
     out["inference"] = bench_inference((25, 50) if q else (25, 50, 100, 200), 1 if q else 3, rngs[0])
-    model = _quick_model()
+    model = quick_model()
     say("sampler")
     out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
     say("collision")
@@ -489,70 +399,3 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
     out["planning"] = bench_planning(config, rngs[4])
     out["memory"] = peak_memory()
     return out
-
-
-def _f(x, fmt: str = ".3g", none: str = "-") -> str:
-    return none if x is None else format(x, fmt)
-
-
-def format_table(r: dict) -> str:
-    """The bench results as a plain-text table."""
-    m = r["machine"]
-    lines = [
-        f"machine: {m['cpu_model']}, {m['cpu_count']} CPUs, {m['platform']}, Python {m['python']}, "
-        f"GTSAM {m['gtsam']}",
-        "",
-        "inference (graph + Gauss-Newton + marginals; marginals alone: gtsam vs dense inverse)",
-        f"  {'T':>5} {'solve ms':>10} {'marg. ms':>10} {'dense ms':>10} {'dense/gtsam':>12} "
-        f"{'max rel diff':>13}",
-    ]
-    for row in r["inference"]["rows"]:
-        lines.append(
-            f"  {row['T']:>5} {row['solve_ms']:>10.1f} {row['marginals_ms']:>10.1f} {row['dense_ms']:>10.1f} "
-            f"{row['dense_over_gtsam']:>12.2f} {row['max_rel_diff']:>13.1e}"
-        )
-    c = r["inference"]["constrained"]
-    lines += [
-        f"  T = {c['T']} with constraint factors on {c['constrained_steps']} steps: {c['solve_ms']:.1f} ms, "
-        f"{c['iterations']} relinearizations",
-        f"sampler: {r['sampler']['samples_per_s']:.3g} samples/s from P(Y) (n = {r['sampler']['n']}; numpy "
-        f"draws {r['sampler'].get('numpy_normals_19d_per_s', float('nan')):.3g} 19-D normals/s here)",
-    ]
-    col = r["collision"]
-    lines.append(
-        f"collision: {col['configs_per_s']:.0f} configurations/s ({col['us_per_config']:.0f} us each, "
-        f"{100 * col['free_fraction']:.0f}% free), {col['edges_per_s']:.0f} edges/s "
-        f"({col['configs_per_edge']:.1f} configurations per edge)"
-    )
-    qu = r["quality"]
-    lines.append(
-        f"quality: epsilon from 4 contacts {qu['epsilon_us']:.0f} us; close-and-score "
-        f"{qu['close_and_score_ms']:.1f} ms (ham grasp epsilon {qu['ham_grasp_quality']:.3f}, "
-        f"{qu['closing_steps']} steps)"
-    )
-    rt = r["retargeting"]
-    lines.append(
-        f"retargeting: {rt['s_per_step']:.2f} s/step (max_nfev {rt['max_nfev']}, {rt['steps']} steps of ham; "
-        f"{rt['projected_demo_s']:.0f} s projected for its {rt['demo_steps']} steps)"
-    )
-    lines += [
-        "",
-        "planning (per scene and planner; shares of planning time: pybullet collision / quality / overhead)",
-        f"  {'scene':<19} {'planner':<13} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
-        f"{'coll.':>6} {'qual.':>6} {'ours':>6}",
-    ]
-    for scene, s in r["planning"].items():
-        for name, p in s["planners"].items():
-            lines.append(
-                f"  {scene:<19} {name:<13} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
-                f"{p['median_nodes']:>7.0f} {p['median_collision_checks']:>8.0f} "
-                f"{_f(p['share_collision'], '.0%'):>6} {_f(p['share_quality'], '.0%'):>6} "
-                f"{_f(p['share_overhead'], '.0%'):>6}"
-            )
-        ra = s["ratios"]
-        lines.append(
-            f"  {scene:<19} median ETA learned/OMPL {_f(ra['learned_over_ompl'], '.2f')}, "
-            f"learned/baseline {_f(ra['learned_over_baseline'], '.2f')}"
-        )
-    lines += ["", f"peak memory: {r['memory']['peak_rss_mib']:.0f} MiB"]
-    return "\n".join(lines)

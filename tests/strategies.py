@@ -10,7 +10,7 @@ import numpy as np
 from assets import sah
 from assets.se3 import pose_from_q, se3_inverse
 from inference.solve import solve
-from pbdgrasp import bench
+from pbdgrasp import bench_fixtures as bench
 from planning.scene import load_scene
 from retarget.trajectory import Trajectory
 

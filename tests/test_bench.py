@@ -5,8 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from pbdgrasp.bench import format_table, synthetic_trajectory
+from pbdgrasp.bench_fixtures import synthetic_trajectory
 from pbdgrasp.cli import main
+from pbdgrasp.cli.bench import format_table
 
 DENSE_REL_TOL = 1e-9  # gtsam marginals vs the dense inverse of the information matrix, relative
 HAM_GRASP_EPSILON_MIN = 0.05  # the hand-placed ham grasp reaches the paper's threshold

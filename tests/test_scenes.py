@@ -144,7 +144,7 @@ def test_ham_arc_admits_the_ham_strategys_grasp_from_above():
     can) is collision-free between the walls, and closing it there still gives a valid grasp, its fingers
     in the 40 mm slot. With the thumb-side wall 40 mm from the can (until 2026-12-01) it was 66 mm inside
     that wall: every valid grasp of the ham strategy put the SAH's thumb module 31-40 mm into it."""
-    from pbdgrasp.bench import HAM_GRASP_Q
+    from pbdgrasp.bench_fixtures import HAM_GRASP_Q
     from planning.world import World
 
     with World("ham_arc") as w:

@@ -38,7 +38,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from assets.errors import InputError
     from assets.io import atomic_write
-    from pbdgrasp.bench import BenchConfig, format_table, run_bench
+    from pbdgrasp.bench import BenchConfig, run_bench
 
     models = []
     for item in args.model:
@@ -61,3 +61,70 @@ def run(args) -> int:
         atomic_write(args.output, lambda f: f.write(text.encode() + b"\n"))
     print(text if args.json else format_table(results))
     return 0
+
+
+def _f(x, fmt: str = ".3g", none: str = "-") -> str:
+    return none if x is None else format(x, fmt)
+
+
+def format_table(r: dict) -> str:
+    """The bench results as a plain-text table."""
+    m = r["machine"]
+    lines = [
+        f"machine: {m['cpu_model']}, {m['cpu_count']} CPUs, {m['platform']}, Python {m['python']}, "
+        f"GTSAM {m['gtsam']}",
+        "",
+        "inference (graph + Gauss-Newton + marginals; marginals alone: gtsam vs dense inverse)",
+        f"  {'T':>5} {'solve ms':>10} {'marg. ms':>10} {'dense ms':>10} {'dense/gtsam':>12} "
+        f"{'max rel diff':>13}",
+    ]
+    for row in r["inference"]["rows"]:
+        lines.append(
+            f"  {row['T']:>5} {row['solve_ms']:>10.1f} {row['marginals_ms']:>10.1f} {row['dense_ms']:>10.1f} "
+            f"{row['dense_over_gtsam']:>12.2f} {row['max_rel_diff']:>13.1e}"
+        )
+    c = r["inference"]["constrained"]
+    lines += [
+        f"  T = {c['T']} with constraint factors on {c['constrained_steps']} steps: {c['solve_ms']:.1f} ms, "
+        f"{c['iterations']} relinearizations",
+        f"sampler: {r['sampler']['samples_per_s']:.3g} samples/s from P(Y) (n = {r['sampler']['n']}; numpy "
+        f"draws {r['sampler'].get('numpy_normals_19d_per_s', float('nan')):.3g} 19-D normals/s here)",
+    ]
+    col = r["collision"]
+    lines.append(
+        f"collision: {col['configs_per_s']:.0f} configurations/s ({col['us_per_config']:.0f} us each, "
+        f"{100 * col['free_fraction']:.0f}% free), {col['edges_per_s']:.0f} edges/s "
+        f"({col['configs_per_edge']:.1f} configurations per edge)"
+    )
+    qu = r["quality"]
+    lines.append(
+        f"quality: epsilon from 4 contacts {qu['epsilon_us']:.0f} us; close-and-score "
+        f"{qu['close_and_score_ms']:.1f} ms (ham grasp epsilon {qu['ham_grasp_quality']:.3f}, "
+        f"{qu['closing_steps']} steps)"
+    )
+    rt = r["retargeting"]
+    lines.append(
+        f"retargeting: {rt['s_per_step']:.2f} s/step (max_nfev {rt['max_nfev']}, {rt['steps']} steps of ham; "
+        f"{rt['projected_demo_s']:.0f} s projected for its {rt['demo_steps']} steps)"
+    )
+    lines += [
+        "",
+        "planning (per scene and planner; shares of planning time: pybullet collision / quality / overhead)",
+        f"  {'scene':<19} {'planner':<13} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
+        f"{'coll.':>6} {'qual.':>6} {'ours':>6}",
+    ]
+    for scene, s in r["planning"].items():
+        for name, p in s["planners"].items():
+            lines.append(
+                f"  {scene:<19} {name:<13} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
+                f"{p['median_nodes']:>7.0f} {p['median_collision_checks']:>8.0f} "
+                f"{_f(p['share_collision'], '.0%'):>6} {_f(p['share_quality'], '.0%'):>6} "
+                f"{_f(p['share_overhead'], '.0%'):>6}"
+            )
+        ra = s["ratios"]
+        lines.append(
+            f"  {scene:<19} median ETA learned/OMPL {_f(ra['learned_over_ompl'], '.2f')}, "
+            f"learned/baseline {_f(ra['learned_over_baseline'], '.2f')}"
+        )
+    lines += ["", f"peak memory: {r['memory']['peak_rss_mib']:.0f} MiB"]
+    return "\n".join(lines)
