@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from pbdgrasp.cli import main
+from pbdgrasp.figures import best_trials
 from pbdgrasp.paper import PAPER_TABLE1, ROWS
-from pbdgrasp.report import best_trials, success_interval, summarize, write_report
+from pbdgrasp.report import success_interval, summarize, write_report
 from pbdgrasp.results_db import TrialRecord, load_trials
 from pbdgrasp.table1 import Table1Config, parse_names, trial_rng
 
