@@ -137,7 +137,6 @@ def machine_info() -> dict:
     }
 
 
-# -- inference -----------------------------------------------------------------------------------------
 def _dense_marginals(graph, values, n: int) -> np.ndarray:
     """(T, 19, 19) marginals of (W_t, J_t) from the dense inverse of the information matrix."""
     from inference.graph import key_j, key_w
@@ -222,7 +221,6 @@ def bench_sampler(
     return {"n": n, "samples_per_s": n / dt, "numpy_normals_19d_per_s": n / dt_ref}
 
 
-# -- pybullet: collision, quality, retargeting -----------------------------------------------------------
 def bench_collision(
     model, n_configs: int = 2000, n_edges: int = 200, rng: np.random.Generator | None = None
 ) -> dict:
@@ -372,7 +370,6 @@ def peak_memory() -> dict:
     return {"peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
-# -- the run -------------------------------------------------------------------------------------------
 def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
     """Every measurement of the module docstring, in one process; a JSON-ready dict.
 

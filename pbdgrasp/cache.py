@@ -69,6 +69,7 @@ RETARGET_SOURCES = (
     *_HAND_SOURCES,
     "pbdgrasp/strategy.py",
     "planning/world.py",
+    "planning/hand_urdf.py",
     "planning/scene.py",
     "planning/_pybullet.py",
 )
@@ -79,6 +80,7 @@ MODEL_SOURCES = (
     "inference",
     *_HAND_SOURCES,
     "planning/world.py",
+    "planning/hand_urdf.py",
     "planning/scene.py",
     "planning/_pybullet.py",
     "pbdgrasp/strategy.py",

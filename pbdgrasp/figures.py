@@ -103,7 +103,7 @@ def best_trials(records: Sequence[TrialRecord], rows: Sequence[str]) -> dict[str
 
 
 def _close_camera(scene, zoom: float) -> dict:
-    from planning.world import default_camera
+    from planning.camera import default_camera
 
     cam = default_camera(scene, "side")
     target = np.asarray(cam["target"], dtype=float)
@@ -127,7 +127,7 @@ def render_best_grasps(
         fallback_q: per row a configuration (19,) in the world to show when no grasp was evaluated (e.g.
             the strategy's mean final step), labelled as such.
         size_px: (width, height) of each render.
-        zoom: the camera's distance as a fraction of :func:`planning.world.default_camera`'s side view.
+        zoom: the camera's distance as a fraction of :func:`planning.camera.default_camera`'s side view.
     """
     from matplotlib.figure import Figure
 

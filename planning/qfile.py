@@ -6,7 +6,7 @@ Two forms are accepted:
   13 SAH joints (rad) in ``assets.sah.JOINT_NAMES`` order;
 * the named form ``{"wrist_position_m": [x, y, z], "wrist_rotvec_rad": [rx, ry, rz],
   "joints_deg": {"index_prox": 30, ...}}``: joints in degrees by name, missing joints at the rest pose
-  (:func:`planning.world.hand_rest_joints`).
+  (:func:`planning.hand_urdf.hand_rest_joints`).
 
 :func:`save_q` writes either form atomically.
 """
@@ -22,7 +22,7 @@ import numpy as np
 from assets.errors import InputError
 from assets.io import atomic_write
 
-from .world import hand_joint_names, hand_rest_joints
+from .hand_urdf import hand_joint_names, hand_rest_joints
 
 __all__ = ["load_q", "save_q", "q_from_dict", "q_to_dict"]
 

@@ -7,13 +7,12 @@ with :meth:`World.close` or use it as a context manager. Everything but the hand
 never stepped, only teleported by :meth:`World.set_q`, so Bullet computes its contacts with the static
 bodies and, with ``URDF_USE_SELF_COLLISION``, between its own links (parent-child pairs excluded).
 
-Collision query costs (this machine): see ``tests/test_world.py`` and the README.
+Collision query costs: ``pbdgrasp bench`` (docs/performance.md).
 """
 
 from __future__ import annotations
 
 import logging
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,9 +24,11 @@ from assets.errors import InputError
 from assets.se3 import quat_of_rotvec
 
 from ._pybullet import connect_direct, pb
+from .camera import default_camera, render_image
+from .hand_urdf import default_excluded_pairs, hand_joint_names, hand_rest_joints, urdf_joints
 from .scene import Scene, load_scene
 
-__all__ = ["Contact", "World", "default_camera", "hand_joint_names", "hand_rest_joints"]
+__all__ = ["Contact", "World"]
 
 log = logging.getLogger(__name__)
 
@@ -53,100 +54,8 @@ class Contact:
     distance_m: float
 
 
-def _urdf_joints(urdf: Path) -> tuple[list[str], dict[str, tuple[str, float, float]]]:
-    """Actuated joint names (URDF order) and mimic joints ``{name: (master, multiplier, offset)}``."""
-    actuated, mimic, _ = _urdf_joint_table(urdf)
-    return actuated, mimic
-
-
-def _urdf_joint_table(urdf: Path):
-    root = ET.parse(urdf).getroot()
-    actuated, mimic, limits = [], {}, {}
-    for j in root.iter("joint"):
-        if j.get("type") in ("fixed", "floating", "planar"):
-            continue
-        m = j.find("mimic")
-        if m is not None:
-            mimic[j.get("name")] = (m.get("joint"), float(m.get("multiplier", 1)), float(m.get("offset", 0)))
-            continue
-        actuated.append(j.get("name"))
-        lim = j.find("limit")
-        if lim is not None and j.get("type") != "continuous":
-            limits[j.get("name")] = (float(lim.get("lower", 0)), float(lim.get("upper", 0)))
-    return actuated, mimic, limits
-
-
-def hand_rest_joints(hand: str) -> np.ndarray:
-    """The rest (open) pose of a hand's joints in :func:`hand_joint_names` order [rad].
-
-    SAH: ``assets.sah.rest_joints()`` (thumb opposed, fingers slightly flexed, free of self-collision);
-    other hands: 0 clipped into the URDF limits.
-    """
-    if hand == "sah":
-        try:
-            from assets.sah import rest_joints
-        except ImportError:  # pragma: no cover - until assets.sah exists
-            pass
-        else:
-            return np.asarray(rest_joints(), dtype=float)
-    _, _, limits = _urdf_joint_table(assets.hand_urdf(hand))
-    out = []
-    for name in hand_joint_names(hand):
-        lo, hi = limits.get(name, (0.0, 0.0))
-        out.append(float(np.clip(0.0, lo, hi)) if hi > lo else 0.0)
-    return np.array(out)
-
-
-def hand_joint_names(hand: str) -> list[str]:
-    """The joint order of ``q[6:]`` for a hand: ``assets.sah.JOINT_NAMES`` for the SAH, else URDF order."""
-    actuated, _ = _urdf_joints(assets.hand_urdf(hand))
-    if hand == "sah":
-        try:
-            from assets.sah import JOINT_NAMES
-        except ImportError:  # pragma: no cover - until assets.sah exists
-            return actuated
-        if sorted(JOINT_NAMES) != sorted(actuated):
-            raise InputError(
-                f"assets.sah.JOINT_NAMES {list(JOINT_NAMES)} disagree with the URDF's {actuated}"
-            )
-        return list(JOINT_NAMES)
-    return actuated
-
-
-def _default_excluded_pairs(hand: str) -> tuple[tuple[str, str], ...]:
-    """Link pairs of a hand that touch by construction (``SELF_COLLISION_EXCLUDED_PAIRS`` of its module)."""
-    if hand == "sah":
-        from assets.sah import SELF_COLLISION_EXCLUDED_PAIRS
-    elif hand == "human":
-        from assets.human_hand import SELF_COLLISION_EXCLUDED_PAIRS
-    else:
-        return ()
-    return tuple(SELF_COLLISION_EXCLUDED_PAIRS)
-
-
 def _quat_xyzw(R: np.ndarray) -> list[float]:
     return list(Rotation.from_matrix(R).as_quat())
-
-
-def default_camera(scene: Scene, view: str = "side") -> dict:
-    """Camera parameters looking at the target object: ``eye``, ``target``, ``up`` (world, m), ``fov_deg``.
-
-    Args:
-        scene: the scene.
-        view: ``side`` (from the front-right, 30 deg above the table) or ``top`` (from above).
-    """
-    meta = assets.object_metadata(scene.object.name)
-    bb = meta["bounding_box_m"]
-    centre_object = (np.array(bb["min"]) + np.array(bb["max"])) / 2
-    target = (scene.T_world_object @ np.append(centre_object, 1.0))[:3]
-    target[2] = max(target[2], 0.06)
-    if view == "top":
-        return {"eye": target + [0.0, -0.02, 1.1], "target": target, "up": [0.0, 1.0, 0.0], "fov_deg": 45.0}
-    if view != "side":
-        raise InputError(f"unknown camera view {view!r}; valid: side, top")
-    d, az, el = 1.05, np.radians(-35.0), np.radians(30.0)
-    eye = target + d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    return {"eye": eye, "target": target + [0, 0, 0.12], "up": [0.0, 0.0, 1.0], "fov_deg": 45.0}
 
 
 class World:
@@ -212,7 +121,7 @@ class World:
         self.base_name = pb.getBodyInfo(self.hand_id, physicsClientId=c)[0].decode()
         self.link_names = [info[12].decode() for info in infos]
         index = {info[1].decode(): i for i, info in enumerate(infos)}
-        actuated, mimic = _urdf_joints(urdf)
+        actuated, mimic = urdf_joints(urdf)
         self.joint_names = hand_joint_names(self.hand)
         self._q_index = np.array([index[name] for name in self.joint_names])
         self._mimic = [
@@ -222,7 +131,7 @@ class World:
         dyn = pb.getDynamicsInfo(self.hand_id, -1, physicsClientId=c)
         self._wrist_inertial = (dyn[3], dyn[4])  # pybullet's base pose is that of its inertial frame
         self._bodies = (self.table_id, self.object_id, *self.obstacle_ids)
-        excluded = self._excluded if self._excluded is not None else _default_excluded_pairs(self.hand)
+        excluded = self._excluded if self._excluded is not None else default_excluded_pairs(self.hand)
         links = {self.base_name: -1, **{name: i for i, name in enumerate(self.link_names)}}
         for a, b in excluded:
             if a not in links or b not in links:
@@ -464,26 +373,7 @@ class World:
         if q is not None:
             self.set_q(q)
         cam = default_camera(self.scene, camera) if isinstance(camera, str) else camera
-        c = self.client
-        view = pb.computeViewMatrix(
-            list(map(float, cam["eye"])),
-            list(map(float, cam["target"])),
-            list(map(float, cam["up"])),
-            physicsClientId=c,
-        )
-        proj = pb.computeProjectionMatrixFOV(cam["fov_deg"], width / height, 0.02, 5.0, physicsClientId=c)
-        img = pb.getCameraImage(
-            width,
-            height,
-            view,
-            proj,
-            renderer=pb.ER_TINY_RENDERER,
-            lightDirection=[0.4, -0.6, 1.0],
-            shadow=0,
-            physicsClientId=c,
-        )
-        rgba = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))
-        return rgba[:, :, :3].copy()
+        return render_image(self.client, cam, width, height)
 
     # --------------------------------------------------------------------------------------------
     def close(self) -> None:
@@ -503,9 +393,3 @@ class World:
 
     def __del__(self):  # pragma: no cover - best effort
         self.close()
-
-
-def object_height_m(name: str) -> float:
-    """Height (m) of an object's bounding box along its own z."""
-    meta = assets.object_metadata(name)
-    return float(meta["bounding_box_m"]["max"][2] - meta["bounding_box_m"]["min"][2])

@@ -22,7 +22,7 @@ def add_arguments(p) -> None:
 
 
 def _hands() -> list[str]:
-    from planning.world import hand_joint_names
+    from planning.hand_urdf import hand_joint_names
 
     rows = []
     for h in assets.hands():
