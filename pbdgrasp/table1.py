@@ -22,7 +22,6 @@ between processes). The coordinating process writes each finished trial to the S
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import logging
@@ -49,6 +48,7 @@ from .results_db import (
     record_from_plan,
     source_commit,
 )
+from .workers import TrialProgress, dask_client
 
 __all__ = [
     "Table1Config",
@@ -282,67 +282,6 @@ def _check_params(conn, tasks_params: dict[tuple[str, str], str]) -> None:
             )
 
 
-class _Progress:
-    """A tqdm bar over all trials with per-row success counts (learned/baseline) in the postfix."""
-
-    def __init__(self, config: Table1Config, total: int, initial: int, records: list[TrialRecord]):
-        from tqdm import tqdm
-
-        self.counts = {r: {p: [0, 0] for p in config.planners} for r in config.rows}
-        for rec in records:
-            self._count(rec)
-        disable = None if config.progress is None else not config.progress
-        self.bar = tqdm(total=total, initial=initial, unit="trial", disable=disable, dynamic_ncols=True)
-        self._postfix()
-
-    def _count(self, rec: TrialRecord) -> None:
-        c = self.counts.get(rec.row, {}).get(rec.planner)
-        if c is not None:
-            c[0] += int(rec.success)
-            c[1] += 1
-
-    def _postfix(self) -> None:
-        text = " ".join(
-            f"{row}:" + "/".join(f"{s}" for s, _ in per.values()) for row, per in self.counts.items()
-        )
-        self.bar.set_postfix_str(f"solved per row ({'/'.join(next(iter(self.counts.values())))}) {text}")
-
-    def update(self, rec: TrialRecord) -> None:
-        self._count(rec)
-        self.bar.update(1)
-        self._postfix()
-
-    def close(self) -> None:
-        self.bar.close()
-
-
-def _quiet_dask() -> None:
-    for name in ("distributed", "dask", "tornado", "bokeh"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-
-
-@contextlib.contextmanager
-def _dask_client(config: Table1Config):
-    from distributed import Client, LocalCluster
-
-    _quiet_dask()
-    if config.scheduler:
-        with Client(config.scheduler) as client:
-            yield client
-        return
-    with (
-        LocalCluster(
-            n_workers=config.workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.WARNING,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
-
-
 def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
     """Compute the strategies, run the unfinished trials and store each one as it completes.
 
@@ -377,7 +316,7 @@ def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
         done = finished_keys(conn) & wanted
         tasks = make_tasks(config, strategies, done, commit) if run_trials else []
         previous = [r for r in load_trials(conn, list(config.rows)) if r.key() in wanted]
-        progress = _Progress(config, len(wanted), len(done), previous)
+        progress = TrialProgress(config, len(wanted), len(done), previous)
         errors = 0
         workers = 0 if (config.workers == 0 and not config.scheduler) else config.workers
         try:
@@ -389,7 +328,7 @@ def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
             elif tasks:
                 from distributed import as_completed
 
-                with _dask_client(config) as client:
+                with dask_client(config) as client:
                     if config.scheduler:
                         workers = len(client.scheduler_info().get("workers", {}))
                     futures = [client.submit(run_trial, t, pure=False, key=f"trial-{t.row}-{t.planner}-"
