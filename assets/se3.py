@@ -35,6 +35,12 @@ __all__ = [
     "quat_of_rotvec",
     "rotvec_from_quat",
     "slerp_rotvec",
+    "quat_rows_from_matrix",
+    "quat_rows_exp",
+    "quat_rows_mul",
+    "quat_rows_rotate",
+    "pose_rows_compose",
+    "rotvec_rows_from_quat",
 ]
 
 _SMALL = 1e-8
@@ -207,3 +213,69 @@ def slerp_rotvec(r_a: np.ndarray, r_b: np.ndarray, s: np.ndarray) -> np.ndarray:
         q = (np.sin((1.0 - s) * omega) * qa + np.sin(s * omega) * qb) / np.sin(omega)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     return rotvec_from_quat(q)
+
+
+# -- unit quaternions [x, y, z, w] and vectors as rows, (4, n) and (3, n): the sampler's fast path --------
+def quat_rows_from_matrix(R: np.ndarray) -> np.ndarray:
+    """(4, m) quaternion rows [x, y, z, w] from rotation matrices (m, 3, 3)."""
+    return np.ascontiguousarray(Rotation.from_matrix(R).as_quat().T)
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
+def quat_rows_exp(omega: np.ndarray) -> np.ndarray:
+    """(4, n) quaternion rows [x, y, z, w] of rotation vectors (3, n) [rad]."""
+    theta = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
+    small = theta < 1e-6
+    s = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * theta) / np.where(small, 1.0, theta))
+    return np.concatenate([omega * s, np.cos(0.5 * theta)[None]])
+
+
+def quat_rows_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The products ``a * b`` (4, n) of quaternion rows [x, y, z, w]."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
+
+
+def quat_rows_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R(q) v = v + 2 w (u x v) + 2 u x (u x v), u the vector part; q (4, n) [x, y, z, w], v (3, n)."""
+    u = q[:3]
+    uv = _cross_rows(u, v)
+    return v + 2.0 * (q[3] * uv + _cross_rows(u, uv))
+
+
+def pose_rows_compose(quat: np.ndarray, p: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(quat, p) @ Exp(xi)`` for xi = [omega, v] (6, n), quat (4, n) [x, y, z, w], p (3, n) [m]: SE(3)
+    Exp's ``V(omega) v``, then rotate (the right perturbation of :func:`retract`)."""
+    omega, v = xi[:3], xi[3:]
+    theta2 = omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2
+    theta = np.sqrt(theta2)
+    small = theta < 1e-4
+    t = np.where(small, 1.0, theta)
+    B = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(t)) / (t * t))
+    C = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - np.sin(t)) / (t * t * t))
+    wv = _cross_rows(omega, v)
+    trans = v + B * wv + C * _cross_rows(omega, wv)
+    return quat_rows_mul(quat, quat_rows_exp(omega)), p + quat_rows_rotate(quat, trans)
+
+
+def rotvec_rows_from_quat(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (3, n), angle in [0, pi], from unit quaternion rows (4, n) [x, y, z, w]."""
+    sign = np.where(q[3] < 0, -1.0, 1.0)
+    w = q[3] * sign
+    u = q[:3]
+    s = np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
+    small = s < 1e-8
+    angle = 2.0 * np.arctan2(s, w)
+    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), angle / np.where(small, 1.0, s)) * sign
+    return u * scale

@@ -27,7 +27,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from assets.errors import InputError
-from assets.se3 import retract
+from assets.se3 import (
+    pose_rows_compose,
+    quat_rows_from_matrix,
+    quat_rows_mul,
+    quat_rows_rotate,
+    retract,
+    rotvec_rows_from_quat,
+)
 
 from .model import VariationModel
 
@@ -97,14 +104,14 @@ class MixtureSampler:
         self._offset = np.concatenate([[0], np.cumsum(steps)]).astype(int)
         if self.models:
             T = np.concatenate([m.T_object_wrist_mean for m in self.models])
-            self._quat_k = _quat_from_matrix(T[:, :3, :3])  # (4, sum T_s)
+            self._quat_k = quat_rows_from_matrix(T[:, :3, :3])  # (4, sum T_s)
             self._p_k = np.ascontiguousarray(T[:, :3, 3].T)  # (3, sum T_s)
             self._joints_k = np.ascontiguousarray(np.concatenate([m.joints_mean for m in self.models]).T)
             self._chol_k32 = np.linalg.cholesky(np.concatenate([m.cov for m in self.models])).astype(
                 np.float32
             )
             To = np.stack([m.T_world_object_mean for m in self.models])
-            self._quat_o = _quat_from_matrix(To[:, :3, :3])
+            self._quat_o = quat_rows_from_matrix(To[:, :3, :3])
             self._p_o = np.ascontiguousarray(To[:, :3, 3].T)
             self._chol_o32 = np.linalg.cholesky(np.stack([m.cov_object for m in self.models])).astype(
                 np.float32
@@ -149,12 +156,12 @@ class MixtureSampler:
                 zo[sl] = zo[sl] @ self._chol_o32[s].T
             xo = np.ascontiguousarray(zo.T, dtype=float)
             # o = mu_o Exp(xo); y = o T_k Exp(xi_w)
-            quat_o, p_o = _compose(self._quat_o[:, model], self._p_o[:, model], xo)
-            quat_ok = _quat_mul(quat_o, self._quat_k[:, group])
-            p_ok = p_o + _quat_rotate(quat_o, self._p_k[:, group])
-            quat_y, p_y = _compose(quat_ok, p_ok, xi[:6])
+            quat_o, p_o = pose_rows_compose(self._quat_o[:, model], self._p_o[:, model], xo)
+            quat_ok = quat_rows_mul(quat_o, self._quat_k[:, group])
+            p_ok = p_o + quat_rows_rotate(quat_o, self._p_k[:, group])
+            quat_y, p_y = pose_rows_compose(quat_ok, p_ok, xi[:6])
             qT[:3, n_uniform:] = p_y
-            qT[3:6, n_uniform:] = _rotvec_from_quat(quat_y)
+            qT[3:6, n_uniform:] = rotvec_rows_from_quat(quat_y)
             joints = self._joints_k[:, group]
             joints += xi[6:]
             np.clip(joints, self.joint_limits[:, :1], self.joint_limits[:, 1:], out=joints)
@@ -168,9 +175,10 @@ class MixtureSampler:
     def _uniform(self, n: int, rng: np.random.Generator) -> np.ndarray:
         qT = np.empty((19, n))
         qT[:3] = rng.uniform(self.lo[:, None], self.hi[:, None], size=(3, n))
-        quat = rng.standard_normal((4, n))
-        quat /= np.sqrt(np.einsum("ij,ij->j", quat, quat))
-        qT[3:6] = _rotvec_from_quat(quat)
+        wxyz = rng.standard_normal((4, n))  # drawn and normalized w first, as the stored trials were
+        wxyz /= np.sqrt(np.einsum("ij,ij->j", wxyz, wxyz))
+        quat = wxyz[[1, 2, 3, 0]]
+        qT[3:6] = rotvec_rows_from_quat(quat)
         qT[6:] = rng.uniform(self.joint_limits[:, :1], self.joint_limits[:, 1:], size=(13, n))
         return qT
 
@@ -215,68 +223,3 @@ def _check_step(model: VariationModel, k: int) -> int:
     if not 0 <= int(k) < model.num_steps:
         raise InputError(f"k: expected a step in 0..{model.num_steps - 1}, found {k}")
     return int(k)
-
-
-# -- unit quaternions [w, x, y, z] and vectors as rows: (4, n) and (3, n) ---------------------------------
-def _quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """(4, m) [w, x, y, z] from rotation matrices (m, 3, 3)."""
-    xyzw = Rotation.from_matrix(R).as_quat()
-    return np.ascontiguousarray(np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1).T)
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def _quat_exp(omega: np.ndarray) -> np.ndarray:
-    """(4, n) from rotation vectors (3, n)."""
-    theta = np.sqrt(omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2)
-    small = theta < 1e-6
-    s = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * theta) / np.where(small, 1.0, theta))
-    return np.concatenate([np.cos(0.5 * theta)[None], omega * s])
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
-
-
-def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """R(q) v = v + 2 w (u x v) + 2 u x (u x v), u the vector part; q (4, n), v (3, n)."""
-    u = q[1:]
-    uv = _cross(u, v)
-    return v + 2.0 * (q[0] * uv + _cross(u, uv))
-
-
-def _compose(quat: np.ndarray, p: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(quat, p) @ Exp(xi)`` for xi = [omega, v] (6, n): SE(3) Exp's ``V(omega) v``, then rotate."""
-    omega, v = xi[:3], xi[3:]
-    theta2 = omega[0] ** 2 + omega[1] ** 2 + omega[2] ** 2
-    theta = np.sqrt(theta2)
-    small = theta < 1e-4
-    t = np.where(small, 1.0, theta)
-    B = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(t)) / (t * t))
-    C = np.where(small, 1.0 / 6.0 - theta2 / 120.0, (t - np.sin(t)) / (t * t * t))
-    wv = _cross(omega, v)
-    trans = v + B * wv + C * _cross(omega, wv)
-    return _quat_mul(quat, _quat_exp(omega)), p + _quat_rotate(quat, trans)
-
-
-def _rotvec_from_quat(q: np.ndarray) -> np.ndarray:
-    """Rotation vectors (3, n), angle in [0, pi], from unit quaternions (4, n) [w, x, y, z]."""
-    sign = np.where(q[0] < 0, -1.0, 1.0)
-    w = q[0] * sign
-    u = q[1:]
-    s = np.sqrt(u[0] ** 2 + u[1] ** 2 + u[2] ** 2)
-    small = s < 1e-8
-    angle = 2.0 * np.arctan2(s, w)
-    scale = np.where(small, 2.0 / np.maximum(w, 1e-300), angle / np.where(small, 1.0, s)) * sign
-    return u * scale

@@ -6,9 +6,15 @@ from test_inference_factors import _standin_map
 from test_inference_model import make_traj
 
 from assets.errors import InputError
-from assets.se3 import local, pose_from_q, se3_exp
+from assets.se3 import (
+    local,
+    pose_from_q,
+    pose_rows_compose,
+    quat_rows_from_matrix,
+    rotvec_rows_from_quat,
+    se3_exp,
+)
 from inference import MixtureSampler, sample, sample_marginal, sample_object, solve
-from inference.sampler import _compose, _quat_from_matrix, _rotvec_from_quat
 
 LIMITS = np.array([[-0.3, 1.2]] * 13)
 ALGEBRA_ATOL = 1e-12
@@ -27,9 +33,11 @@ def test_fast_composition_equals_the_se3_matrices():
     T = se3_exp(rng.normal(size=(50, 6)))
     xi = rng.normal(size=(50, 6)) * np.r_[[1.0] * 3 + [0.3] * 3]
     xi[:5, :3] *= 1e-7  # the small-angle branch
-    quat, p = _compose(_quat_from_matrix(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3].T), xi.T.copy())
+    quat, p = pose_rows_compose(
+        quat_rows_from_matrix(T[:, :3, :3]), np.ascontiguousarray(T[:, :3, 3].T), xi.T.copy()
+    )
     expected = T @ se3_exp(xi)
-    got = pose_from_q(np.concatenate([p.T, _rotvec_from_quat(quat).T], axis=1))
+    got = pose_from_q(np.concatenate([p.T, rotvec_rows_from_quat(quat).T], axis=1))
     assert np.abs(got - expected).max() < ALGEBRA_ATOL
 
 
