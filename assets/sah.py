@@ -18,6 +18,7 @@ from types import MappingProxyType
 import numpy as np
 
 import assets
+from assets.q_layout import Q_DIM
 
 from .kinematics import HandModel, collision_radius, load_hand_model
 from .se3 import skew
@@ -173,14 +174,14 @@ def fingertip_jacobian(T_object_wrist: np.ndarray, joints: np.ndarray) -> np.nda
     m = model()
     poses = m.fk(joints)
     R = T[..., None, :3, :3]  # (..., 1, 3, 3)
-    J = np.zeros(batch + (4, 3, 19))
+    J = np.zeros(batch + (4, 3, Q_DIM))
     p_wrist = np.stack([poses[t][..., :3, 3] for t in TIP_LINKS], axis=-2)  # (..., 4, 3)
     # d/dxi of R (Exp(xi) p) at 0 = R [-skew(p) | I]
     J[..., :3] = -R @ skew(p_wrist)
     J[..., 3:6] = np.broadcast_to(R, batch + (4, 3, 3))
     for k, t in enumerate(TIP_LINKS):
         J[..., k, :, 6:] = T[..., :3, :3] @ m.point_jacobian(joints, t, poses)
-    return J.reshape(batch + (12, 19))
+    return J.reshape(batch + (12, Q_DIM))
 
 
 def config_cov_from_fingertip_cov(J: np.ndarray, cov_tips: np.ndarray, rcond: float = 1e-10) -> np.ndarray:

@@ -27,6 +27,7 @@ import gtsam
 import numpy as np
 
 from assets.errors import InputError
+from assets.q_layout import N_JOINTS, Q_DIM
 from assets.se3 import retract
 
 from .params import VariationParams
@@ -42,7 +43,6 @@ __all__ = [
     "is_block_diagonal",
 ]
 
-N_JOINTS = 13
 FingertipMap = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
 ConstraintGradientFn = Callable[[np.ndarray, np.ndarray], "tuple[np.ndarray, np.ndarray]"]
@@ -72,9 +72,9 @@ def demonstration_error(
     if not jacobians:
         return e
     Jr_inv = gtsam.Pose3.LogmapDerivative(Z)
-    H_O = np.zeros((19, 6), order="F")
-    H_W = np.zeros((19, 6), order="F")
-    H_J = np.zeros((19, N_JOINTS), order="F")
+    H_O = np.zeros((Q_DIM, 6), order="F")
+    H_W = np.zeros((Q_DIM, 6), order="F")
+    H_J = np.zeros((Q_DIM, N_JOINTS), order="F")
     H_W[:6] = Jr_inv
     H_O[:6] = -Jr_inv @ O_inv_W.inverse().AdjointMap()
     H_J[6:] = np.eye(N_JOINTS)
@@ -128,19 +128,19 @@ def demonstration_factors(
         ]
     noise = gtsam.noiseModel.Gaussian.Covariance(cov)
     if fixed:
-        H_J = np.zeros((19, N_JOINTS), order="F")
+        H_J = np.zeros((Q_DIM, N_JOINTS), order="F")
         H_J[6:] = np.eye(N_JOINTS)
 
         def error_fixed(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
             Z = P.between(values.atPose3(key_w))
-            e = np.empty(19)
+            e = np.empty(Q_DIM)
             e[6:] = values.atVector(key_j) - joints_r
             if H is None:
                 e[:6] = gtsam.Pose3.Logmap(Z)
                 return e
             Jr_inv = np.zeros((6, 6), order="F")
             e[:6] = gtsam.Pose3.Logmap(Z, Jr_inv)
-            H_W = np.zeros((19, 6), order="F")
+            H_W = np.zeros((Q_DIM, 6), order="F")
             H_W[:6] = Jr_inv
             H[0], H[1] = H_W, H_J
             return e
@@ -228,7 +228,7 @@ def constraint_factors(
     G = np.atleast_2d(np.asarray(grad, dtype=float))
     r = np.atleast_1d(np.asarray(r_t, dtype=float))
     m = len(phi)
-    if G.shape != (m, 19) or r.shape != (m,):
+    if G.shape != (m, Q_DIM) or r.shape != (m,):
         raise InputError(f"constraint factors: phi0 {phi.shape}, grad {G.shape} and r_t {r.shape} disagree")
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
@@ -260,9 +260,9 @@ def constraint_gradient(
     joints = np.asarray(joints, dtype=float)
     value = np.asarray(constraint_fn(T, joints), dtype=float)
     phi0 = np.atleast_1d(value)
-    grad = np.zeros((len(phi0), 19))
-    for i in range(19):
-        d = np.zeros(19)
+    grad = np.zeros((len(phi0), Q_DIM))
+    for i in range(Q_DIM):
+        d = np.zeros(Q_DIM)
         d[i] = step
         plus = np.atleast_1d(np.asarray(constraint_fn(retract(T, d[:6]), joints + d[6:]), dtype=float))
         minus = np.atleast_1d(np.asarray(constraint_fn(retract(T, -d[:6]), joints - d[6:]), dtype=float))
@@ -297,7 +297,7 @@ def modeling_covariance(
     T_object_wrist = np.asarray(T_object_wrist, dtype=float)
     n = T_object_wrist.shape[0]
     if params.sigma_m_std_config is not None:
-        cov = np.broadcast_to(np.diag(np.square(params.sigma_m_std_config)), (n, 19, 19)).copy()
+        cov = np.broadcast_to(np.diag(np.square(params.sigma_m_std_config)), (n, Q_DIM, Q_DIM)).copy()
     else:
         fingertip_std, wrist_pos_std, wrist_rot_std = params.modeling_stds(grasp_type)
         if fingertip_map is None:
@@ -306,13 +306,13 @@ def modeling_covariance(
             fingertip_map(T_object_wrist, np.asarray(joints, dtype=float), fingertip_std**2 * np.eye(12)),
             dtype=float,
         )
-        if cov.shape != (n, 19, 19):
+        if cov.shape != (n, Q_DIM, Q_DIM):
             raise InputError(f"fingertip map: expected shape {(n, 19, 19)}, found {cov.shape}")
         cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
         idx = np.arange(6)
         cov[:, idx, idx] += np.array([wrist_rot_std**2] * 3 + [wrist_pos_std**2] * 3)
     floor = math.radians(params.joint_floor_std_deg) ** 2
-    idx = np.arange(6, 19)
+    idx = np.arange(6, Q_DIM)
     cov[:, idx, idx] += floor
     return cov
 

@@ -61,10 +61,9 @@ import numpy as np
 import yaml
 
 from assets.errors import InputError
+from assets.q_layout import Q_DIM
 
 __all__ = ["VariationParams"]
-
-_CONFIG_DIM = 19
 
 
 @dataclass(frozen=True)
@@ -109,7 +108,7 @@ class VariationParams:
                 if value is None:
                     continue
                 arr = np.asarray(value, dtype=float) if _is_numeric_seq(value) else None
-                if arr is None or arr.shape != (_CONFIG_DIM,):
+                if arr is None or arr.shape != (Q_DIM,):
                     raise InputError(
                         f"{f.name}: expected 19 numbers [omega (rad), v (m), joints (rad)], found {value!r}"
                     )

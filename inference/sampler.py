@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from assets.errors import InputError
+from assets.q_layout import Q_DIM
 from assets.se3 import (
     pose_rows_compose,
     quat_rows_from_matrix,
@@ -133,7 +134,7 @@ class MixtureSampler:
             raise InputError(f"n: expected a count >= 0, found {n}")
         counts = rng.multinomial(n, self._probs / self._probs.sum())
         n_uniform = int(counts[0])
-        qT = np.empty((19, n))  # components in rows: every operation below runs on contiguous (n,) rows
+        qT = np.empty((Q_DIM, n))  # components in rows: every operation below runs on contiguous (n,) rows
         strategy = np.full(n, -1, dtype=int)
         k = np.zeros(n, dtype=int)
         is_last = np.ones(n, dtype=bool)
@@ -143,7 +144,7 @@ class MixtureSampler:
             group = np.repeat(np.arange(len(counts) - 1), counts[1:])  # flat (model, step) index, sorted
             model = self._model_of[group]
             # float32 normals are twice as fast and far more precise than any use of these samples needs
-            z = rng.standard_normal((m, 19), dtype=np.float32)
+            z = rng.standard_normal((m, Q_DIM), dtype=np.float32)
             starts = np.concatenate([[0], np.cumsum(counts[1:])])
             for g in np.flatnonzero(counts[1:]):  # contiguous row blocks: one BLAS call per (model, step)
                 sl = slice(starts[g], starts[g + 1])
@@ -173,7 +174,7 @@ class MixtureSampler:
         return MixtureSample(np.take(qT, perm, axis=1).T, strategy[perm], k[perm], is_last[perm])
 
     def _uniform(self, n: int, rng: np.random.Generator) -> np.ndarray:
-        qT = np.empty((19, n))
+        qT = np.empty((Q_DIM, n))
         qT[:3] = rng.uniform(self.lo[:, None], self.hi[:, None], size=(3, n))
         wxyz = rng.standard_normal((4, n))  # drawn and normalized w first, as the stored trials were
         wxyz /= np.sqrt(np.einsum("ij,ij->j", wxyz, wxyz))
@@ -199,7 +200,7 @@ def sample_marginal(
         ``T_object_wrist`` (n, 4, 4) = ``T_object_wrist_mean[k] Exp(xi_w)`` and ``joints`` (n, 13).
     """
     k = _check_step(model, k)
-    x = rng.multivariate_normal(np.zeros(19), model.cov[k], size=int(n), method="cholesky")
+    x = rng.multivariate_normal(np.zeros(Q_DIM), model.cov[k], size=int(n), method="cholesky")
     return retract(model.T_object_wrist_mean[k], x[:, :6]), model.joints_mean[k] + x[:, 6:]
 
 

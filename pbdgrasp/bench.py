@@ -40,6 +40,7 @@ import gtsam
 import numpy as np
 
 from assets.errors import InputError
+from assets.q_layout import Q_DIM
 
 from .bench_fixtures import HAM_GRASP_Q, quick_model, strategy_model, synthetic_trajectory
 
@@ -147,7 +148,7 @@ def _dense_marginals(graph, values, n: int) -> np.ndarray:
         order.push_back(key_j(t))
     info = graph.linearize(values).hessian(order)[0]
     cov = np.linalg.inv(info)
-    idx = np.arange(n)[:, None] * 19 + np.arange(19)
+    idx = np.arange(n)[:, None] * Q_DIM + np.arange(Q_DIM)
     return cov[idx[:, :, None], idx[:, None, :]]
 
 
@@ -217,7 +218,7 @@ def bench_sampler(
     lo, hi = load_scene("ham").bounds_array
     mixture = MixtureSampler([model], lo, hi, 0.05)
     dt, _ = _timed(lambda: mixture.sample(n, rng), repeats)
-    dt_ref, _ = _timed(lambda: rng.standard_normal((n, 19)), repeats)  # the machine's speed, for reference
+    dt_ref, _ = _timed(lambda: rng.standard_normal((n, Q_DIM)), repeats)  # the machine's speed, for reference
     return {"n": n, "samples_per_s": n / dt, "numpy_normals_19d_per_s": n / dt_ref}
 
 

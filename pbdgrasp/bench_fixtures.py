@@ -42,7 +42,7 @@ def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
     T = np.repeat(T_object_grasp[None], num_steps, axis=0)
     T[:, 2, 3] += 0.15 * (1.0 - s)
     joints = (1.0 - s)[:, None] * sah.rest_joints() + s[:, None] * q[6:]
-    A = rng.normal(size=(num_steps, 19, 6)) * 0.003
+    A = rng.normal(size=(num_steps, Q_DIM, 6)) * 0.003
     cov = A @ np.swapaxes(A, 1, 2)
     return Trajectory(
         T,

@@ -36,6 +36,7 @@ import numpy as np
 import assets
 from assets import sah
 from assets.errors import InputError
+from assets.q_layout import Q_DIM
 
 from ._pybullet import pb
 from .grasp_quality import epsilon_l1
@@ -169,7 +170,7 @@ class HandCloser:
         """Place the hand at ``q`` (19,) [m, rad], close it until contact and score the grasp."""
         t0 = time.perf_counter()
         q = np.array(q, dtype=float).reshape(-1)
-        if q.shape != (19,) or not np.all(np.isfinite(q)):
+        if q.shape != (Q_DIM,) or not np.all(np.isfinite(q)):
             raise InputError(f"phi_o: q must be 19 finite numbers, found shape {q.shape}")
         if not self.world.is_free(q):
             self.world.set_q(q)

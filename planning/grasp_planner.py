@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from assets.errors import InputError
+from assets.q_layout import Q_DIM
 from assets.sah import JOINT_LIMITS
 from inference.model import VariationModel
 from inference.sampler import MixtureSampler, sample
@@ -89,7 +90,7 @@ class _Buffered:
 
     def __init__(self, draw, batch: int):
         self.draw, self.batch = draw, batch
-        self.q = np.empty((0, 19))
+        self.q = np.empty((0, Q_DIM))
         self.goal = np.empty(0, dtype=bool)
         self.i = 0
 
@@ -154,7 +155,7 @@ class GraspPlanner:
     ) -> np.ndarray:
         """``n`` world-frame draws (n, 19) of step ``k`` (or of ``T_s - k_from_end``) of random strategies."""
         which = rng.integers(len(self.models), size=n)
-        out = np.empty((n, 19))
+        out = np.empty((n, Q_DIM))
         for s, model in enumerate(self.models):
             idx = np.flatnonzero(which == s)
             if idx.size:
@@ -171,7 +172,7 @@ class GraspPlanner:
             batch = self.draw_marginal(None, min(n, max_draws - drawn), rng, k=0)
             drawn += len(batch)
             kept.extend(q for q in batch if self.checker.is_free(q))
-        return np.array(kept[:n]).reshape(-1, 19)
+        return np.array(kept[:n]).reshape(-1, Q_DIM)
 
     def quality(self, q: np.ndarray):
         """phi_o at ``q``: ``(quality, GraspResult)``."""
@@ -185,7 +186,12 @@ class GraspPlanner:
         roots = self.roots(rng, settings.num_roots)
         if len(roots) == 0:
             return PlanResult(
-                False, "no collision-free start configuration in N(b_1, B_1)", 0.0, 0, 0.0, np.empty((0, 19))
+                False,
+                "no collision-free start configuration in N(b_1, B_1)",
+                0.0,
+                0,
+                0.0,
+                np.empty((0, Q_DIM)),
             )
         lo, hi = self.bounds
 

@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from assets.q_layout import N_JOINTS, Q_DIM
+
 from .rrt_connect import PlanResult
 
 __all__ = ["plan_ompl"]
-
-_N_JOINTS = 13
 
 
 _SEEDED = []  # OMPL's RNG is process-global and accepts a seed only before its first draw
@@ -84,9 +84,9 @@ def plan_ompl(
         b3.setLow(i, float(lo[i]))
         b3.setHigh(i, float(hi[i]))
     r3.setBounds(b3)
-    rj = ob.RealVectorStateSpace(_N_JOINTS)
-    bj = ob.RealVectorBounds(_N_JOINTS)
-    for i in range(_N_JOINTS):
+    rj = ob.RealVectorStateSpace(N_JOINTS)
+    bj = ob.RealVectorBounds(N_JOINTS)
+    for i in range(N_JOINTS):
         bj.setLow(i, float(joint_limits[i, 0]))
         bj.setHigh(i, float(joint_limits[i, 1]))
     rj.setBounds(bj)
@@ -97,10 +97,10 @@ def plan_ompl(
 
     def to_q(state) -> np.ndarray:
         rot = state[1]
-        q = np.empty(19)
+        q = np.empty(Q_DIM)
         q[:3] = [state[0][i] for i in range(3)]
         q[3:6] = Rotation.from_quat([rot.x, rot.y, rot.z, rot.w]).as_rotvec()
-        q[6:] = [state[2][i] for i in range(_N_JOINTS)]
+        q[6:] = [state[2][i] for i in range(N_JOINTS)]
         return q
 
     def from_q(q: np.ndarray, state) -> None:
@@ -109,7 +109,7 @@ def plan_ompl(
         x, y, z, w = Rotation.from_rotvec(q[3:6]).as_quat()
         rot = state[1]
         rot.x, rot.y, rot.z, rot.w = float(x), float(y), float(z), float(w)
-        for i in range(_N_JOINTS):
+        for i in range(N_JOINTS):
             state[2][i] = float(q[6 + i])
 
     stats = {"checks": 0, "evals": 0, "t_col": 0.0, "t_q": 0.0, "best": 0.0, "payload": None, "goal": None}
@@ -156,7 +156,7 @@ def plan_ompl(
                     from_q(q, state)
                     return
             # nothing valid found: hand back a state outside the bounds, which the checker rejects
-            bad = np.zeros(19)
+            bad = np.zeros(Q_DIM)
             bad[:3] = hi + 1.0
             from_q(bad, state)
 
@@ -182,7 +182,7 @@ def plan_ompl(
     planner.getPlannerData(data)
     nodes = int(data.numVertices())
     exact = bool(solved) and pdef.hasExactSolution()
-    path = np.empty((0, 19))
+    path = np.empty((0, Q_DIM))
     quality = stats["best"]
     payload = stats["payload"]
     if exact:

@@ -41,12 +41,11 @@ from assets.io import (
     require_shape,
     require_spd,
 )
+from assets.q_layout import N_JOINTS, Q_DIM
 
-__all__ = ["Trajectory", "GRASP_TYPES", "N_JOINTS", "N_CONFIG"]
+__all__ = ["Trajectory", "GRASP_TYPES"]
 
 GRASP_TYPES = ("precision", "power")
-N_JOINTS = 13
-N_CONFIG = 19
 _KEYS = (
     "T_object_wrist",
     "joints",
@@ -90,7 +89,9 @@ class Trajectory:
         if not np.allclose(T[:, 3], [0, 0, 0, 1]):
             raise InputError("T_object_wrist: last row of a homogeneous transform must be [0, 0, 0, 1]", p)
         J = require_finite("joints", require_shape("joints", self.joints, (n, N_JOINTS), p), p)
-        C = require_psd("cov_retarget", require_shape("cov_retarget", self.cov_retarget, (n, 19, 19), p), p)
+        C = require_psd(
+            "cov_retarget", require_shape("cov_retarget", self.cov_retarget, (n, Q_DIM, Q_DIM), p), p
+        )
         R = require_finite(
             "fingertip_rmse_mm", require_shape("fingertip_rmse_mm", self.fingertip_rmse_mm, (n,), p), p
         )

@@ -107,23 +107,26 @@ def format_table(r: dict) -> str:
         f"retargeting: {rt['s_per_step']:.2f} s/step (max_nfev {rt['max_nfev']}, {rt['steps']} steps of ham; "
         f"{rt['projected_demo_s']:.0f} s projected for its {rt['demo_steps']} steps)"
     )
+    from pbdgrasp.bench import PLANNING_SCENES
+
+    w = 1 + max(map(len, (*PLANNING_SCENES, *r["planning"])))  # the scene column, one space to spare
     lines += [
         "",
         "planning (per scene and planner; shares of planning time: pybullet collision / quality / overhead)",
-        f"  {'scene':<19} {'planner':<13} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
+        f"  {'scene':<{w}} {'planner':<13} {'success':>8} {'med ETA s':>10} {'nodes':>7} {'checks':>8} "
         f"{'coll.':>6} {'qual.':>6} {'ours':>6}",
     ]
     for scene, s in r["planning"].items():
         for name, p in s["planners"].items():
             lines.append(
-                f"  {scene:<19} {name:<13} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
+                f"  {scene:<{w}} {name:<13} {p['success_rate']:>8.0%} {_f(p['median_eta_s'], '.2f'):>10} "
                 f"{p['median_nodes']:>7.0f} {p['median_collision_checks']:>8.0f} "
                 f"{_f(p['share_collision'], '.0%'):>6} {_f(p['share_quality'], '.0%'):>6} "
                 f"{_f(p['share_overhead'], '.0%'):>6}"
             )
         ra = s["ratios"]
         lines.append(
-            f"  {scene:<19} median ETA learned/OMPL {_f(ra['learned_over_ompl'], '.2f')}, "
+            f"  {scene:<{w}} median ETA learned/OMPL {_f(ra['learned_over_ompl'], '.2f')}, "
             f"learned/baseline {_f(ra['learned_over_baseline'], '.2f')}"
         )
     lines += ["", f"peak memory: {r['memory']['peak_rss_mib']:.0f} MiB"]
