@@ -64,8 +64,9 @@ ROT = slice(3, 6)
 POSE = slice(0, POSE_DIM)
 """The wrist pose ``[p, r]`` in ``q``."""
 
-JOINTS = slice(POSE_DIM, Q_DIM)
-"""The joints, in ``q`` and in its tangent alike [rad]."""
+JOINTS = slice(POSE_DIM, None)
+"""The joints, in ``q`` and in its tangent alike [rad] (13 for the SAH; the same slice serves the
+human hand's 6 + 20 entries in the pybullet world)."""
 
 TAN_ROT = slice(0, 3)
 """Rotation ``omega`` in the tangent [rad] (GTSAM's Pose3 order: rotation first)."""

@@ -21,6 +21,7 @@ import assets
 from assets.q_layout import Q_DIM
 
 from .kinematics import HandModel, collision_radius, load_hand_model
+from .q_layout import TAN_POS, TAN_ROT
 from .se3 import skew
 
 __all__ = [
@@ -177,8 +178,8 @@ def fingertip_jacobian(T_object_wrist: np.ndarray, joints: np.ndarray) -> np.nda
     J = np.zeros(batch + (4, 3, Q_DIM))
     p_wrist = np.stack([poses[t][..., :3, 3] for t in TIP_LINKS], axis=-2)  # (..., 4, 3)
     # d/dxi of R (Exp(xi) p) at 0 = R [-skew(p) | I]
-    J[..., :3] = -R @ skew(p_wrist)
-    J[..., 3:6] = np.broadcast_to(R, batch + (4, 3, 3))
+    J[..., TAN_ROT] = -R @ skew(p_wrist)
+    J[..., TAN_POS] = np.broadcast_to(R, batch + (4, 3, 3))
     for k, t in enumerate(TIP_LINKS):
         J[..., k, :, 6:] = T[..., :3, :3] @ m.point_jacobian(joints, t, poses)
     return J.reshape(batch + (12, Q_DIM))

@@ -19,6 +19,8 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .q_layout import POS, ROT
+
 __all__ = [
     "skew",
     "so3_exp",
@@ -155,7 +157,7 @@ def make_pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
 def pose_from_q(q: np.ndarray) -> np.ndarray:
     """Wrist pose (..., 4, 4) from configurations ``q`` (..., >=6): position then rotation vector."""
     q = np.asarray(q, dtype=float)
-    return make_pose(so3_exp(q[..., 3:6]), q[..., :3])
+    return make_pose(so3_exp(q[..., ROT]), q[..., POS])
 
 
 def q_from_pose(T: np.ndarray) -> np.ndarray:

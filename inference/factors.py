@@ -27,7 +27,7 @@ import gtsam
 import numpy as np
 
 from assets.errors import InputError
-from assets.q_layout import N_JOINTS, Q_DIM
+from assets.q_layout import JOINTS, N_JOINTS, Q_DIM, TAN_POSE
 from assets.se3 import retract
 
 from .params import VariationParams
@@ -75,9 +75,9 @@ def demonstration_error(
     H_O = np.zeros((Q_DIM, 6), order="F")
     H_W = np.zeros((Q_DIM, 6), order="F")
     H_J = np.zeros((Q_DIM, N_JOINTS), order="F")
-    H_W[:6] = Jr_inv
-    H_O[:6] = -Jr_inv @ O_inv_W.inverse().AdjointMap()
-    H_J[6:] = np.eye(N_JOINTS)
+    H_W[TAN_POSE] = Jr_inv
+    H_O[TAN_POSE] = -Jr_inv @ O_inv_W.inverse().AdjointMap()
+    H_J[JOINTS] = np.eye(N_JOINTS)
     return e, H_O, H_W, H_J
 
 
@@ -129,19 +129,19 @@ def demonstration_factors(
     noise = gtsam.noiseModel.Gaussian.Covariance(cov)
     if fixed:
         H_J = np.zeros((Q_DIM, N_JOINTS), order="F")
-        H_J[6:] = np.eye(N_JOINTS)
+        H_J[JOINTS] = np.eye(N_JOINTS)
 
         def error_fixed(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
             Z = P.between(values.atPose3(key_w))
             e = np.empty(Q_DIM)
-            e[6:] = values.atVector(key_j) - joints_r
+            e[JOINTS] = values.atVector(key_j) - joints_r
             if H is None:
-                e[:6] = gtsam.Pose3.Logmap(Z)
+                e[TAN_POSE] = gtsam.Pose3.Logmap(Z)
                 return e
             Jr_inv = np.zeros((6, 6), order="F")
-            e[:6] = gtsam.Pose3.Logmap(Z, Jr_inv)
+            e[TAN_POSE] = gtsam.Pose3.Logmap(Z, Jr_inv)
             H_W = np.zeros((Q_DIM, 6), order="F")
-            H_W[:6] = Jr_inv
+            H_W[TAN_POSE] = Jr_inv
             H[0], H[1] = H_W, H_J
             return e
 
@@ -167,9 +167,11 @@ def smoothness_factors(key_w0: int, key_w1: int, key_j0: int, key_j1: int, stds:
     """
     stds = np.asarray(stds, dtype=float)
     return [
-        gtsam.BetweenFactorPose3(key_w0, key_w1, gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(stds[:6])),
+        gtsam.BetweenFactorPose3(
+            key_w0, key_w1, gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(stds[TAN_POSE])
+        ),
         gtsam.BetweenFactorVector(
-            key_j0, key_j1, np.zeros(N_JOINTS), gtsam.noiseModel.Diagonal.Sigmas(stds[6:])
+            key_j0, key_j1, np.zeros(N_JOINTS), gtsam.noiseModel.Diagonal.Sigmas(stds[JOINTS])
         ),
     ]
 
@@ -196,11 +198,11 @@ def linear_constraint_error(
     G = np.atleast_2d(np.asarray(grad, dtype=float))
     d = W0.between(W)
     xi = gtsam.Pose3.Logmap(d)
-    e = np.asarray(C, dtype=float) - phi0 - G[:, :6] @ xi - G[:, 6:] @ (np.asarray(J) - J0)
+    e = np.asarray(C, dtype=float) - phi0 - G[:, TAN_POSE] @ xi - G[:, JOINTS] @ (np.asarray(J) - J0)
     if not jacobians:
         return e
-    H_W = np.asfortranarray(-(G[:, :6] @ gtsam.Pose3.LogmapDerivative(d)))
-    return e, np.asfortranarray(np.eye(len(e))), H_W, np.asfortranarray(-G[:, 6:])
+    H_W = np.asfortranarray(-(G[:, TAN_POSE] @ gtsam.Pose3.LogmapDerivative(d)))
+    return e, np.asfortranarray(np.eye(len(e))), H_W, np.asfortranarray(-G[:, JOINTS])
 
 
 def constraint_factors(
@@ -264,8 +266,12 @@ def constraint_gradient(
     for i in range(Q_DIM):
         d = np.zeros(Q_DIM)
         d[i] = step
-        plus = np.atleast_1d(np.asarray(constraint_fn(retract(T, d[:6]), joints + d[6:]), dtype=float))
-        minus = np.atleast_1d(np.asarray(constraint_fn(retract(T, -d[:6]), joints - d[6:]), dtype=float))
+        plus = np.atleast_1d(
+            np.asarray(constraint_fn(retract(T, d[TAN_POSE]), joints + d[JOINTS]), dtype=float)
+        )
+        minus = np.atleast_1d(
+            np.asarray(constraint_fn(retract(T, -d[TAN_POSE]), joints - d[JOINTS]), dtype=float)
+        )
         grad[:, i] = (plus - minus) / (2 * step)
     if not (np.all(np.isfinite(phi0)) and np.all(np.isfinite(grad))):
         raise InputError(f"constraint function returned a non-finite value (phi = {phi0.tolist()})")
@@ -312,7 +318,7 @@ def modeling_covariance(
         idx = np.arange(6)
         cov[:, idx, idx] += np.array([wrist_rot_std**2] * 3 + [wrist_pos_std**2] * 3)
     floor = math.radians(params.joint_floor_std_deg) ** 2
-    idx = np.arange(6, Q_DIM)
+    idx = np.arange(Q_DIM)[JOINTS]
     cov[:, idx, idx] += floor
     return cov
 

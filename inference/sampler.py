@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from assets.errors import InputError
-from assets.q_layout import Q_DIM
+from assets.q_layout import JOINTS, POS, Q_DIM, ROT, TAN_POSE
 from assets.se3 import (
     pose_rows_compose,
     quat_rows_from_matrix,
@@ -160,13 +160,13 @@ class MixtureSampler:
             quat_o, p_o = pose_rows_compose(self._quat_o[:, model], self._p_o[:, model], xo)
             quat_ok = quat_rows_mul(quat_o, self._quat_k[:, group])
             p_ok = p_o + quat_rows_rotate(quat_o, self._p_k[:, group])
-            quat_y, p_y = pose_rows_compose(quat_ok, p_ok, xi[:6])
-            qT[:3, n_uniform:] = p_y
-            qT[3:6, n_uniform:] = rotvec_rows_from_quat(quat_y)
+            quat_y, p_y = pose_rows_compose(quat_ok, p_ok, xi[TAN_POSE])
+            qT[POS, n_uniform:] = p_y
+            qT[ROT, n_uniform:] = rotvec_rows_from_quat(quat_y)
             joints = self._joints_k[:, group]
-            joints += xi[6:]
+            joints += xi[JOINTS]
             np.clip(joints, self.joint_limits[:, :1], self.joint_limits[:, 1:], out=joints)
-            qT[6:, n_uniform:] = joints
+            qT[JOINTS, n_uniform:] = joints
             strategy[n_uniform:] = model
             k[n_uniform:] = self._k_of[group]
             is_last[n_uniform:] = self._last_of[group]
@@ -175,12 +175,12 @@ class MixtureSampler:
 
     def _uniform(self, n: int, rng: np.random.Generator) -> np.ndarray:
         qT = np.empty((Q_DIM, n))
-        qT[:3] = rng.uniform(self.lo[:, None], self.hi[:, None], size=(3, n))
+        qT[POS] = rng.uniform(self.lo[:, None], self.hi[:, None], size=(3, n))
         wxyz = rng.standard_normal((4, n))  # drawn and normalized w first, as the stored trials were
         wxyz /= np.sqrt(np.einsum("ij,ij->j", wxyz, wxyz))
         quat = wxyz[[1, 2, 3, 0]]
-        qT[3:6] = rotvec_rows_from_quat(quat)
-        qT[6:] = rng.uniform(self.joint_limits[:, :1], self.joint_limits[:, 1:], size=(13, n))
+        qT[ROT] = rotvec_rows_from_quat(quat)
+        qT[JOINTS] = rng.uniform(self.joint_limits[:, :1], self.joint_limits[:, 1:], size=(13, n))
         return qT
 
 
@@ -201,7 +201,7 @@ def sample_marginal(
     """
     k = _check_step(model, k)
     x = rng.multivariate_normal(np.zeros(Q_DIM), model.cov[k], size=int(n), method="cholesky")
-    return retract(model.T_object_wrist_mean[k], x[:, :6]), model.joints_mean[k] + x[:, 6:]
+    return retract(model.T_object_wrist_mean[k], x[:, TAN_POSE]), model.joints_mean[k] + x[:, JOINTS]
 
 
 def sample(model: VariationModel, k: int, n: int, rng: np.random.Generator, joint_limits=None) -> np.ndarray:

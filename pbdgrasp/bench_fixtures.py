@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from assets.q_layout import Q_DIM
+from assets.q_layout import JOINTS, Q_DIM
 
 __all__ = ["HAM_GRASP_Q", "quick_model", "strategy_model", "synthetic_trajectory"]
 
@@ -41,7 +41,7 @@ def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
     s = 10 * s**3 - 15 * s**4 + 6 * s**5
     T = np.repeat(T_object_grasp[None], num_steps, axis=0)
     T[:, 2, 3] += 0.15 * (1.0 - s)
-    joints = (1.0 - s)[:, None] * sah.rest_joints() + s[:, None] * q[6:]
+    joints = (1.0 - s)[:, None] * sah.rest_joints() + s[:, None] * q[JOINTS]
     A = rng.normal(size=(num_steps, Q_DIM, 6)) * 0.003
     cov = A @ np.swapaxes(A, 1, 2)
     return Trajectory(

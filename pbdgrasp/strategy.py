@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from assets.q_layout import POSE
 from assets.sah import JOINT_LIMITS
 from assets.se3 import pose_from_q, q_from_pose
 from inference.model import VariationModel
@@ -71,7 +72,7 @@ def object_frame_penetration(world: World, T_world_object: np.ndarray) -> Callab
 def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
     """q (19,) with its wrist pose moved from the object frame into the world frame; joints unchanged."""
     q_world = np.array(q_object, dtype=float)
-    q_world[:6] = q_from_pose(T_world_object @ pose_from_q(q_object))
+    q_world[POSE] = q_from_pose(T_world_object @ pose_from_q(q_object))
     return q_world
 
 

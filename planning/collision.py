@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from assets.q_layout import JOINTS, POS
+
 from .config_space import HandConfigSpace
 
 __all__ = ["CollisionChecker"]
@@ -53,12 +55,12 @@ class CollisionChecker:
         """The configurations checked along the edge, excluding ``q_a`` and including ``q_b``: (n, 19)."""
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
-        dp = q_b[:3] - q_a[:3]
+        dp = q_b[POS] - q_a[POS]
         n = math.ceil(
             max(
                 math.sqrt(float(dp @ dp)) / self.position_resolution_m,
                 _SPACE.angle(q_a, q_b) / self.rotation_resolution_rad,
-                float(np.max(np.abs(q_b[6:] - q_a[6:]))) / self.joint_resolution_rad,
+                float(np.max(np.abs(q_b[JOINTS] - q_a[JOINTS]))) / self.joint_resolution_rad,
                 1.0,
             )
         )

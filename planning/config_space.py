@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from assets.q_layout import JOINTS, POS, ROT
 from assets.se3 import quat_of_rotvec, slerp_rotvec
 
 __all__ = ["EuclideanSpace", "HandConfigSpace"]
@@ -67,8 +68,8 @@ class HandConfigSpace:
 
     def features(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        quat = np.array([quat_of_rotvec(*r) for r in q[:, 3:6].tolist()]).reshape(-1, 4)
-        lin = np.concatenate([q[:, :3] / self.position_step_m, q[:, 6:] / self.joint_step_rad], axis=1)
+        quat = np.array([quat_of_rotvec(*r) for r in q[:, ROT].tolist()]).reshape(-1, 4)
+        lin = np.concatenate([q[:, POS] / self.position_step_m, q[:, JOINTS] / self.joint_step_rad], axis=1)
         return np.concatenate([lin, quat, (lin * lin).sum(axis=1, keepdims=True)], axis=1)
 
     def distance_to(self, features: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -96,8 +97,8 @@ class HandConfigSpace:
     def distance(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         a = np.asarray(q_a, dtype=float)
         b = np.asarray(q_b, dtype=float)
-        dp = a[:3] - b[:3]
-        dj = a[6:] - b[6:]
+        dp = a[POS] - b[POS]
+        dj = a[JOINTS] - b[JOINTS]
         angle = self.angle(a, b) / self.rotation_step_rad
         return math.sqrt(
             float(dp @ dp) / self.position_step_m**2 + float(dj @ dj) / self.joint_step_rad**2 + angle * angle
@@ -105,7 +106,7 @@ class HandConfigSpace:
 
     def angle(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         """The geodesic angle [rad] between the wrist orientations of ``q_a`` and ``q_b``."""
-        qa, qb = quat_of_rotvec(*q_a[3:6]), quat_of_rotvec(*q_b[3:6])
+        qa, qb = quat_of_rotvec(*q_a[ROT]), quat_of_rotvec(*q_b[ROT])
         sign = -1.0 if sum(x * y for x, y in zip(qa, qb, strict=True)) < 0 else 1.0
         minus = math.sqrt(sum((x - sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
         plus = math.sqrt(sum((x + sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
@@ -116,7 +117,7 @@ class HandConfigSpace:
         q_b = np.asarray(q_b, dtype=float)
         s = float(s)
         out = q_a + s * (q_b - q_a)
-        qa, qb = quat_of_rotvec(*q_a[3:6]), quat_of_rotvec(*q_b[3:6])
+        qa, qb = quat_of_rotvec(*q_a[ROT]), quat_of_rotvec(*q_b[ROT])
         dot = sum(x * y for x, y in zip(qa, qb, strict=True))
         if dot < 0:
             qb, dot = tuple(-y for y in qb), -dot
@@ -126,7 +127,7 @@ class HandConfigSpace:
             omega = math.acos(min(dot, 1.0))
             wa, wb = math.sin((1.0 - s) * omega), math.sin(s * omega)
             quat = [wa * x + wb * y for x, y in zip(qa, qb, strict=True)]
-        out[3:6] = _rotvec(*quat)
+        out[ROT] = _rotvec(*quat)
         return out
 
     def interpolate_many(self, q_a: np.ndarray, q_b: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -135,7 +136,7 @@ class HandConfigSpace:
         q_b = np.asarray(q_b, dtype=float)
         s = np.asarray(s, dtype=float).reshape(-1)
         out = q_a + s[:, None] * (q_b - q_a)
-        out[:, 3:6] = slerp_rotvec(q_a[3:6], q_b[3:6], s)
+        out[:, ROT] = slerp_rotvec(q_a[ROT], q_b[ROT], s)
         return out
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from assets.q_layout import N_JOINTS, Q_DIM
+from assets.q_layout import JOINTS, N_JOINTS, POS, Q_DIM, ROT
 
 from .rrt_connect import PlanResult
 
@@ -98,15 +98,15 @@ def plan_ompl(
     def to_q(state) -> np.ndarray:
         rot = state[1]
         q = np.empty(Q_DIM)
-        q[:3] = [state[0][i] for i in range(3)]
-        q[3:6] = Rotation.from_quat([rot.x, rot.y, rot.z, rot.w]).as_rotvec()
-        q[6:] = [state[2][i] for i in range(N_JOINTS)]
+        q[POS] = [state[0][i] for i in range(3)]
+        q[ROT] = Rotation.from_quat([rot.x, rot.y, rot.z, rot.w]).as_rotvec()
+        q[JOINTS] = [state[2][i] for i in range(N_JOINTS)]
         return q
 
     def from_q(q: np.ndarray, state) -> None:
         for i in range(3):
             state[0][i] = float(q[i])
-        x, y, z, w = Rotation.from_rotvec(q[3:6]).as_quat()
+        x, y, z, w = Rotation.from_rotvec(q[ROT]).as_quat()
         rot = state[1]
         rot.x, rot.y, rot.z, rot.w = float(x), float(y), float(z), float(w)
         for i in range(N_JOINTS):
@@ -157,7 +157,7 @@ def plan_ompl(
                     return
             # nothing valid found: hand back a state outside the bounds, which the checker rejects
             bad = np.zeros(Q_DIM)
-            bad[:3] = hi + 1.0
+            bad[POS] = hi + 1.0
             from_q(bad, state)
 
         def maxSampleCount(self) -> int:

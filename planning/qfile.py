@@ -21,6 +21,7 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.io import atomic_write
+from assets.q_layout import JOINTS, POS, ROT
 
 from .hand_urdf import hand_joint_names, hand_rest_joints
 
@@ -87,9 +88,9 @@ def q_to_dict(q: np.ndarray, hand: str = "sah", named: bool = False) -> dict:
     if not named:
         return {"q": [float(x) for x in q]}
     return {
-        "wrist_position_m": [float(x) for x in q[:3]],
-        "wrist_rotvec_rad": [float(x) for x in q[3:6]],
-        "joints_deg": {n: float(np.degrees(x)) for n, x in zip(names, q[6:], strict=True)},
+        "wrist_position_m": [float(x) for x in q[POS]],
+        "wrist_rotvec_rad": [float(x) for x in q[ROT]],
+        "joints_deg": {n: float(np.degrees(x)) for n, x in zip(names, q[JOINTS], strict=True)},
     }
 
 

@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
+from assets.q_layout import JOINTS, POS, POSE, ROT
 from assets.se3 import quat_of_rotvec
 
 from ._pybullet import connect_direct, pb
@@ -72,7 +73,7 @@ class World:
         client: the pybullet client id.
         hand_id, object_id, table_id: body ids; obstacle_ids: tuple of body ids (scene order).
         link_names: the hand's link names by pybullet link index (index -1, the wrist, is ``base_name``).
-        joint_names: the order of ``q[6:]``.
+        joint_names: the order of ``q[JOINTS]``.
     """
 
     def __init__(
@@ -214,10 +215,10 @@ class World:
             raise InputError("q: non-finite value")
         c = self.client
         pos, quat = pb.multiplyTransforms(
-            q[:3].tolist(), list(quat_of_rotvec(*q[3:6])), *self._wrist_inertial, physicsClientId=c
+            q[POS].tolist(), list(quat_of_rotvec(*q[ROT])), *self._wrist_inertial, physicsClientId=c
         )
         pb.resetBasePositionAndOrientation(self.hand_id, pos, quat, physicsClientId=c)
-        joints = q[6:]
+        joints = q[JOINTS]
         values = [[float(v)] for v in joints] + [[k * float(joints[m]) + off] for _, m, k, off in self._mimic]
         pb.resetJointStatesMultiDof(self.hand_id, self._all_joints, values, physicsClientId=c)
         self.q = q.copy()
@@ -307,7 +308,7 @@ class World:
         Returns:
             phi (1 + number of links,) [m] and grad (1 + number of links, dof): the columns are the wrist
             tangent ``[omega (rad), v (m)]`` of ``T_world_wrist @ Exp(xi)`` (GTSAM's Pose3 retract, body
-            frame), then the joints in ``q[6:]`` order [rad]; a link with nothing within
+            frame), then the joints in ``q[JOINTS]`` order [rad]; a link with nothing within
             ``max_distance_m`` has a zero row.
         """
         from assets.se3 import pose_from_q
@@ -315,9 +316,9 @@ class World:
         phi, closest = self._closest_points(q, max_distance_m, include_object, bodies)
         kin, perm = self._kinematics()
         joints = np.empty(kin.n)
-        joints[perm] = np.asarray(q, dtype=float)[6:]
+        joints[perm] = np.asarray(q, dtype=float)[JOINTS]
         poses = kin.fk(joints)
-        T_world_wrist = pose_from_q(q[:6])
+        T_world_wrist = pose_from_q(q[POSE])
         R, t = T_world_wrist[:3, :3], T_world_wrist[:3, 3]
         grad = np.zeros((len(phi), self.dof))
         for i, (p_world, n_world) in closest.items():
@@ -348,7 +349,7 @@ class World:
         return out, closest
 
     def _kinematics(self):
-        """The hand's analytic kinematics and, for each joint of ``q[6:]``, its index in the model's order."""
+        """The hand's analytic kinematics and, for each joint of ``q[JOINTS]``, its index in the model."""
         if self._kin is None:
             from assets.kinematics import load_hand_model
 

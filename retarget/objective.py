@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from assets import sah
-from assets.q_layout import POSE_DIM
+from assets.q_layout import POSE_DIM, TAN_ROT
 from assets.se3 import make_pose, q_from_pose, se3_exp
 
 from . import ik
@@ -219,7 +219,7 @@ class StepObjective:
         """The wrist ``T`` of ``x`` is within ``max_wrist_step_mm`` and ``_deg`` of ``T_start``."""
         return bool(
             np.linalg.norm(T[:3, 3] - self.T_start[:3, 3]) <= self.max_step[0]
-            and np.linalg.norm(x[:3]) <= self.max_step[1]
+            and np.linalg.norm(x[TAN_ROT]) <= self.max_step[1]
         )
 
     def _depth_mm(self, T: np.ndarray, joints: np.ndarray) -> float:

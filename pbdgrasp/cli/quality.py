@@ -8,6 +8,7 @@ import logging
 import numpy as np
 
 from assets.errors import InputError
+from assets.q_layout import JOINTS
 
 NAME = "quality"
 HELP = "close the hand at Q.json until contact, print epsilon (L1), the contacts and the closed q"
@@ -65,7 +66,7 @@ def _as_dict(res, joint_names) -> dict:
         ],
         "closed_q": res.closed_q.tolist(),
         "closed_joints_deg": dict(
-            zip(joint_names, np.rad2deg(res.closed_q[6:]).round(3).tolist(), strict=True)
+            zip(joint_names, np.rad2deg(res.closed_q[JOINTS]).round(3).tolist(), strict=True)
         ),
         "steps": res.steps,
         "time_ms": 1e3 * res.time_s,
@@ -83,7 +84,9 @@ def _as_text(res, joint_names) -> str:
             f"n_into_object {np.array2string(n, precision=3)}"
         )
     lines.append("closed q: " + json.dumps([round(float(x), 6) for x in res.closed_q]))
-    joints = ", ".join(f"{n} {v:.1f}" for n, v in zip(joint_names, np.rad2deg(res.closed_q[6:]), strict=True))
+    joints = ", ".join(
+        f"{n} {v:.1f}" for n, v in zip(joint_names, np.rad2deg(res.closed_q[JOINTS]), strict=True)
+    )
     lines.append(f"closed joints [deg]: {joints}")
     lines.append(f"{res.steps} closing steps in {1e3 * res.time_s:.1f} ms")
     return "\n".join(lines)

@@ -9,6 +9,7 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.io import atomic_write
+from assets.q_layout import POS, ROT
 
 NAME = "render"
 HELP = "render a scene with the hand at a configuration to a PNG"
@@ -39,8 +40,8 @@ def hover_q(world) -> np.ndarray:
 
     lo, hi = pb.getAABB(world.object_id, physicsClientId=world.client)
     q = world.rest_q()
-    q[:3] = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.05 + reach_m(world)]
-    q[3:6] = [np.pi, 0.0, 0.0]  # wrist z (towards the fingers) pointing down
+    q[POS] = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.05 + reach_m(world)]
+    q[ROT] = [np.pi, 0.0, 0.0]  # wrist z (towards the fingers) pointing down
     for _ in range(40):
         if world.is_free(q):
             return q
