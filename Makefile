@@ -42,7 +42,7 @@ $(STAMP): pyproject.toml
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	MPLBACKEND=Agg $(BIN)/python -m pytest --durations=15
 	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 
 table1: setup

@@ -1,4 +1,4 @@
-"""The planners on the real ham scene, with a strategy built in code (tests/strategies.py).
+"""The planners on the real ham scene, with a strategy built in code (``ham_top_down_model`` of conftest.py).
 
 Paths are checked independently of the planner: the first node is a collision-free root, every edge is
 re-checked at twice the planner's resolution in a separate world, and the grasp at the end is scored again
@@ -7,7 +7,6 @@ by a fresh hand closer.
 
 import numpy as np
 import pytest
-from strategies import ham_top_down_model
 
 from planning.autograsp import HandCloser
 from planning.collision import CollisionChecker
@@ -18,7 +17,7 @@ EPSILON = 0.05
 
 
 @pytest.fixture(scope="module")
-def model():
+def model(ham_top_down_model):
     return ham_top_down_model()
 
 

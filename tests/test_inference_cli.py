@@ -1,14 +1,13 @@
 """``pbdgrasp infer``: writes a loadable model, refuses bad input with exit 2 and no file."""
 
 import numpy as np
-from test_inference_model import make_traj
 
 from assets.sah import JOINT_LIMITS
 from inference import VariationModel, solve
 from pbdgrasp.cli import main
 
 
-def test_infer_writes_a_model(tmp_path, capsys):
+def test_infer_writes_a_model(make_traj, tmp_path, capsys):
     traj = make_traj(n=6, seed=21)
     traj.save(tmp_path / "t.traj.npz")
     out = tmp_path / "m.model.npz"
@@ -25,7 +24,7 @@ def test_infer_writes_a_model(tmp_path, capsys):
     assert beyond(model.joints_mean) < 0
 
 
-def test_infer_refuses_bad_input_without_writing(tmp_path, capsys):
+def test_infer_refuses_bad_input_without_writing(make_traj, tmp_path, capsys):
     raw = dict(np.load(make_traj(n=3, seed=22).save(tmp_path / "t.traj.npz")))
     raw["cov_retarget"][1, 0, 0] = np.nan
     np.savez(tmp_path / "bad.traj.npz", **raw)

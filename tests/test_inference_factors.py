@@ -22,29 +22,6 @@ JACOBIAN_ATOL = 1e-7  # central differences with h = 1e-6 on O(1) functions
 H_STEP = 1e-6
 
 
-def numerical_jacobian(error_fn, values: gtsam.Values, key: int, h: float = H_STEP) -> np.ndarray:
-    """Central-difference Jacobian of ``error_fn(values)`` w.r.t. the variable ``key`` (Pose3: retract)."""
-    is_pose = True
-    try:
-        x0 = values.atPose3(key)
-        dim = 6
-    except RuntimeError:
-        is_pose = False
-        x0 = values.atVector(key)
-        dim = x0.shape[0]
-    cols = []
-    for i in range(dim):
-        d = np.zeros(dim)
-        d[i] = h
-        out = []
-        for sign in (1.0, -1.0):
-            v = gtsam.Values(values)
-            v.update(key, x0.retract(sign * d) if is_pose else x0 + sign * d)
-            out.append(np.asarray(error_fn(v), dtype=float))
-        cols.append((out[0] - out[1]) / (2 * h))
-    return np.stack(cols, axis=1)
-
-
 def analytic_jacobians(factor, values) -> list[np.ndarray]:
     """The factor's Jacobian blocks as GTSAM linearizes them (whitened by its noise model)."""
     A, _ = factor.linearize(values).jacobian()
@@ -66,7 +43,7 @@ def _random_pose(rng, scale=1.0):
     return gtsam.Pose3(se3_exp(rng.normal(size=6) * scale))
 
 
-def _check_factor(factor, values):
+def _check_factor(factor, values, numerical_jacobian):
     for key, A in zip(factor.keys(), analytic_jacobians(factor, values), strict=True):
         H_num = numerical_jacobian(factor.whitenedError, values, key)
         scale = max(1.0, np.abs(A).max())  # whitening by sigma = 1e-5 scales the constraint's rows by 1e5
@@ -79,7 +56,7 @@ def _spd(rng, n=19, scale=0.01):
     return A @ A.T + 1e-4 * np.eye(n)
 
 
-def test_demonstration_error_jacobians_match_numerical():
+def test_demonstration_error_jacobians_match_numerical(numerical_jacobian):
     rng = np.random.default_rng(1)
     for _ in range(5):
         O, W, tau = _random_pose(rng), _random_pose(rng), _random_pose(rng)
@@ -135,7 +112,7 @@ def test_block_diagonal_demonstration_factor_uses_builtins_with_the_same_error()
     assert math.isclose(chi2, expected @ np.linalg.solve(cov, expected), rel_tol=1e-9)
 
 
-def test_constraint_factor_jacobians_and_delta_noise():
+def test_constraint_factor_jacobians_and_delta_noise(numerical_jacobian):
     rng = np.random.default_rng(4)
     W0 = _random_pose(rng)
     J0 = rng.normal(size=13)
@@ -147,7 +124,7 @@ def test_constraint_factor_jacobians_and_delta_noise():
     values.insert(7, np.array([0.25]))
     values.insert(1, W0.retract(rng.normal(size=6) * 0.2))
     values.insert(2, J0 + rng.normal(size=13) * 0.1)
-    _check_factor(f3, values)
+    _check_factor(f3, values, numerical_jacobian)
     assert math.isclose(f3.noiseModel().sigmas()[0] ** 2, 1e-10, rel_tol=1e-12)
     # at the linearization point the error is C - phi0
     values.update(1, W0)
@@ -179,22 +156,15 @@ def test_constraint_gradient_of_an_analytic_function():
         constraint_gradient(lambda T, q: float("nan"), T, joints, 1e-5)
 
 
-def _standin_map(T_object_wrist, joints, cov12):
-    """A fixed full-rank 12x19 'fingertip Jacobian': the same mapping J+ cov J+^T as assets.sah."""
-    J = np.random.default_rng(0).normal(size=(12, 19))
-    Jp = np.linalg.pinv(J)
-    return np.broadcast_to(Jp @ cov12 @ Jp.T, (len(T_object_wrist), 19, 19)).copy()
-
-
-def test_modeling_covariance_mapping_wrist_terms_and_floor():
+def test_modeling_covariance_mapping_wrist_terms_and_floor(standin_map):
     T = se3_exp(np.zeros((3, 6)))
     joints = np.zeros((3, 13))
     p = VariationParams()
-    cov = modeling_covariance(T, joints, "precision", p, _standin_map)
-    mapped = _standin_map(T, joints, 0.008**2 * np.eye(12))
+    cov = modeling_covariance(T, joints, "precision", p, standin_map)
+    mapped = standin_map(T, joints, 0.008**2 * np.eye(12))
     extra = np.diag([math.radians(2) ** 2] * 3 + [0.005**2] * 3 + [math.radians(1) ** 2] * 13)
     np.testing.assert_allclose(cov, mapped + extra, rtol=0, atol=1e-15)
-    power = modeling_covariance(T, joints, "power", p, _standin_map)
+    power = modeling_covariance(T, joints, "power", p, standin_map)
     np.testing.assert_allclose(power[0, 3, 3] - mapped[0, 3, 3] * (18 / 8) ** 2, 0.015**2, atol=1e-15)
     # configuration-space override replaces the mapping
     stds = np.linspace(0.01, 0.2, 19)

@@ -6,10 +6,9 @@ import math
 import gtsam
 import numpy as np
 import pytest
-from test_inference_factors import _standin_map, numerical_jacobian
 
 from assets.errors import InputError
-from assets.se3 import local, se3_exp
+from assets.se3 import local
 from inference import VariationModel, VariationParams, build_graph, factor_covariances, initial_values, solve
 from inference.graph import key_j, key_o, key_w
 from retarget.trajectory import Trajectory
@@ -23,34 +22,7 @@ UNIT = VariationParams(
 )
 
 
-def make_traj(n=5, coupled=True, seed=0, T_world_object=None, xi_path=None, cov_scale=0.01):
-    rng = np.random.default_rng(seed)
-    s = np.linspace(0.0, 1.0, n)
-    if xi_path is None:
-        xi_path = np.zeros((n, 6))
-        xi_path[:, 0] = 0.4 * s
-        xi_path[:, 2] = -0.2 * s
-        xi_path[:, 3] = 0.05 + 0.1 * (1 - s)
-        xi_path[:, 5] = 0.25 * (1 - s)
-    A = rng.normal(size=(n, 19, 6)) * cov_scale
-    cov = A @ np.swapaxes(A, 1, 2)
-    if not coupled:
-        cov[:, :6, 6:] = cov[:, 6:, :6] = 0.0
-    T_wo = se3_exp(np.array([0.1, -0.2, 0.5, 0.4, 0.0, 0.7])) if T_world_object is None else T_world_object
-    return Trajectory(
-        T_object_wrist=se3_exp(xi_path),
-        joints=np.outer(s, np.linspace(0.1, 0.8, 13)),
-        cov_retarget=cov,
-        fingertip_rmse_mm=np.zeros(n),
-        T_world_object_mean=T_wo,
-        cov_object=np.diag([0.05] * 3 + [0.01] * 3) ** 2,
-        dt_s=0.05,
-        object="testobj",
-        grasp_type="precision",
-    )
-
-
-def _solve_full(traj, params, fingertip_map=_standin_map):
+def _solve_full(traj, params, fingertip_map):
     """The full graph P(O) P(X | O), solved by Gauss-Newton to convergence."""
     cov_f1 = factor_covariances(traj, params, fingertip_map)
     graph = build_graph(traj, params, cov_f1, traj.T_world_object_mean, traj.cov_object)
@@ -62,7 +34,7 @@ def _solve_full(traj, params, fingertip_map=_standin_map):
     return graph, values
 
 
-def test_three_step_chain_of_unit_variances_has_the_hand_computed_marginals():
+def test_three_step_chain_of_unit_variances_has_the_hand_computed_marginals(standin_map):
     """O ~ N(0, I); W_t - O ~ N(0, I) and J_t ~ N(0, I) per step; unit smoothness; everything at identity.
 
     Given O, each coordinate is the chain with information [[2,-1,0],[-1,3,-1],[0,-1,2]], whose inverse has
@@ -82,7 +54,7 @@ def test_three_step_chain_of_unit_variances_has_the_hand_computed_marginals():
     model = solve(traj, UNIT)
     for t, var in enumerate((5 / 8, 1 / 2, 5 / 8)):
         np.testing.assert_allclose(model.cov[t], var * np.eye(19), rtol=0, atol=1e-12)
-    graph, values = _solve_full(traj, UNIT)
+    graph, values = _solve_full(traj, UNIT, standin_map)
     marginals = gtsam.Marginals(graph, values)
     np.testing.assert_allclose(marginals.marginalCovariance(key_o()), np.eye(6), atol=1e-12)
     for t, var in enumerate((13 / 8, 3 / 2, 13 / 8)):
@@ -123,7 +95,7 @@ def _dense_joint_chain_full(traj, params, extra):
     return (cov @ eta).reshape(n, 13), cov
 
 
-def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chain():
+def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chain(make_traj):
     """Block-diagonal covariances: the joints form a linear-Gaussian chain, solved densely with numpy."""
     n = 8
     traj = make_traj(n=n, coupled=False, seed=3)
@@ -141,12 +113,14 @@ def test_joint_marginals_equal_the_dense_closed_form_of_the_linear_gaussian_chai
 
 
 @pytest.mark.parametrize("coupled", [False, True])
-def test_marginals_equal_a_dense_numerical_linearization_at_the_mean(coupled):
+def test_marginals_equal_a_dense_numerical_linearization_at_the_mean(
+    make_traj, numerical_jacobian, standin_map, coupled
+):
     n = 5
     traj = make_traj(n=n, coupled=coupled, seed=4)
-    model = solve(traj, fingertip_map=_standin_map)
+    model = solve(traj, fingertip_map=standin_map)
     params = model.params
-    cov_f1 = factor_covariances(traj, params, _standin_map)
+    cov_f1 = factor_covariances(traj, params, standin_map)
     graph = build_graph(traj, params, cov_f1, traj.T_world_object_mean, None, fixed_object=True)
     values = gtsam.Values()
     T_world_wrist = traj.T_world_object_mean @ model.T_object_wrist_mean
@@ -185,11 +159,13 @@ def test_marginals_equal_a_dense_numerical_linearization_at_the_mean(coupled):
         assert np.abs(values.atVector(key_j(t)) - again.atVector(key_j(t))).max() < MEAN_ATOL
 
 
-def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_marginals():
+def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_marginals(
+    make_traj, standin_map
+):
     n = 5
     traj = make_traj(n=n, coupled=True, seed=5)
-    model = solve(traj, fingertip_map=_standin_map)
-    graph, values = _solve_full(traj, model.params)
+    model = solve(traj, fingertip_map=standin_map)
+    graph, values = _solve_full(traj, model.params, standin_map)
     marginals = gtsam.Marginals(graph, values)
     # a dense joint computation: the full information matrix, inverted with numpy
     order = gtsam.Ordering()
@@ -200,7 +176,7 @@ def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_mar
     fixed = build_graph(
         traj,
         model.params,
-        factor_covariances(traj, model.params, _standin_map),
+        factor_covariances(traj, model.params, standin_map),
         traj.T_world_object_mean,
         None,
         fixed_object=True,
@@ -233,7 +209,7 @@ def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_mar
     assert np.abs(local(values.atPose3(key_o()).matrix(), traj.T_world_object_mean)).max() < MEAN_ATOL
 
 
-def test_a_constraint_moves_the_mean_and_shrinks_the_variance_along_its_gradient():
+def test_a_constraint_moves_the_mean_and_shrinks_the_variance_along_its_gradient(make_traj, standin_map):
     """phi = wrist height above the plane z = 0; the trajectory ends 3 mm above it, the clearance is 10 mm."""
     n = 10
     s = np.linspace(0, 1, n)
@@ -244,8 +220,8 @@ def test_a_constraint_moves_the_mean_and_shrinks_the_variance_along_its_gradient
     def height(T_world_wrist, joints):
         return float(T_world_wrist[2, 3])
 
-    free = solve(traj, fingertip_map=_standin_map)
-    held = solve(traj, fingertip_map=_standin_map, constraint_fn=height)
+    free = solve(traj, fingertip_map=standin_map)
+    held = solve(traj, fingertip_map=standin_map, constraint_fn=height)
     assert free.iterations == 1 and not free.constrained.any()
     assert held.converged and 1 < held.iterations <= held.params.max_iterations
     np.testing.assert_array_equal(held.constrained, xi[:, 5] < held.params.activation_distance_mm * 1e-3)
@@ -262,7 +238,7 @@ def test_a_constraint_moves_the_mean_and_shrinks_the_variance_along_its_gradient
     assert abs(held.T_object_wrist_mean[0, 2, 3] - free.T_object_wrist_mean[0, 2, 3]) < 1e-3
 
 
-def test_a_vector_constraint_pushes_every_active_component_out():
+def test_a_vector_constraint_pushes_every_active_component_out(make_traj, standin_map):
     """phi = [height above z = 0, distance to a wall x = x0] (one component per 'link'): the trajectory ends
     3 mm from both; each component gets its own row, and both move towards the 10 mm clearance."""
     n = 10
@@ -270,13 +246,13 @@ def test_a_vector_constraint_pushes_every_active_component_out():
     xi = np.zeros((n, 6))
     xi[:, 5] = 0.003 + 0.15 * np.clip(1 - s / 0.6, 0, None)
     traj = make_traj(n=n, T_world_object=np.eye(4), xi_path=xi, seed=6, cov_scale=0.003)
-    free = solve(traj, fingertip_map=_standin_map)
+    free = solve(traj, fingertip_map=standin_map)
     x0 = free.T_object_wrist_mean[-1, 0, 3] - 0.003
 
     def floor_and_wall(T_world_wrist, joints):
         return np.array([T_world_wrist[2, 3], T_world_wrist[0, 3] - x0])
 
-    held = solve(traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall)
+    held = solve(traj, fingertip_map=standin_map, constraint_fn=floor_and_wall)
     assert held.converged
     clearance = held.params.clearance_mm * 1e-3
     for axis, plane in ((2, 0.0), (0, x0)):
@@ -287,7 +263,7 @@ def test_a_vector_constraint_pushes_every_active_component_out():
         assert np.all(d_held[near] - d_free[near] > 0.3 * (clearance - d_free[near])), (axis, d_free, d_held)
 
 
-def test_per_component_clearances_hold_each_component_at_its_own_distance():
+def test_per_component_clearances_hold_each_component_at_its_own_distance(make_traj, standin_map):
     """The floor and wall of the test above with clearances (10, 0) mm: the floor component moves out
     towards 10 mm as before, the wall component is held at its demonstrated 3 mm (target max(3, 0) mm);
     a clearance vector of the wrong length is an InputError."""
@@ -296,7 +272,7 @@ def test_per_component_clearances_hold_each_component_at_its_own_distance():
     xi = np.zeros((n, 6))
     xi[:, 5] = 0.003 + 0.15 * np.clip(1 - s / 0.6, 0, None)
     traj = make_traj(n=n, T_world_object=np.eye(4), xi_path=xi, seed=6, cov_scale=0.003)
-    free = solve(traj, fingertip_map=_standin_map)
+    free = solve(traj, fingertip_map=standin_map)
     x0 = free.T_object_wrist_mean[-1, 0, 3] - 0.003
     x_tau = traj.T_world_object_mean @ traj.T_object_wrist
 
@@ -304,7 +280,7 @@ def test_per_component_clearances_hold_each_component_at_its_own_distance():
         return np.array([T_world_wrist[2, 3], T_world_wrist[0, 3] - x0])
 
     held = solve(
-        traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(10, 0)
+        traj, fingertip_map=standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(10, 0)
     )
     assert held.converged
     floor_free, floor_held = free.T_object_wrist_mean[:, 2, 3], held.T_object_wrist_mean[:, 2, 3]
@@ -318,11 +294,11 @@ def test_per_component_clearances_hold_each_component_at_its_own_distance():
     assert np.all(np.abs(wall_held[near_wall] - wall_tau[near_wall]) < 0.004), (wall_tau, wall_held)
     with pytest.raises(InputError, match="3 clearances for 2 constraint components"):
         solve(
-            traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(1, 2, 3)
+            traj, fingertip_map=standin_map, constraint_fn=floor_and_wall, constraint_clearance_mm=(1, 2, 3)
         )
 
 
-def test_an_analytic_constraint_gradient_gives_the_central_differences_model():
+def test_an_analytic_constraint_gradient_gives_the_central_differences_model(make_traj, standin_map):
     """The floor and wall with their closed-form gradient, d phi / d [omega, v] = [0, R[axis]] (a body
     twist moves the wrist position by R v): the same means and covariances as central differences; a
     gradient of the wrong shape is an InputError."""
@@ -341,9 +317,9 @@ def test_an_analytic_constraint_gradient_gives_the_central_differences_model():
         grad[0, 3:6], grad[1, 3:6] = T_world_wrist[2, :3], T_world_wrist[0, :3]
         return floor_and_wall(T_world_wrist, joints), grad
 
-    numeric = solve(traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall)
+    numeric = solve(traj, fingertip_map=standin_map, constraint_fn=floor_and_wall)
     analytic = solve(
-        traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=with_gradient
+        traj, fingertip_map=standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=with_gradient
     )
     assert analytic.converged and analytic.constrained.sum() >= 2
     np.testing.assert_array_equal(analytic.constrained, numeric.constrained)
@@ -357,13 +333,13 @@ def test_an_analytic_constraint_gradient_gives_the_central_differences_model():
 
     with pytest.raises(InputError, match=r"expected phi \(m,\) and grad \(m, 19\)"):
         solve(
-            traj, fingertip_map=_standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=wrong_shape
+            traj, fingertip_map=standin_map, constraint_fn=floor_and_wall, constraint_gradient_fn=wrong_shape
         )
 
 
-def test_save_load_roundtrip(tmp_path):
+def test_save_load_roundtrip(make_traj, standin_map, tmp_path):
     traj = make_traj(n=4, seed=7)
-    model = solve(traj, fingertip_map=_standin_map)
+    model = solve(traj, fingertip_map=standin_map)
     path = model.save(tmp_path / "m.model.npz")
     back = VariationModel.load(path)
     for name in (
@@ -405,8 +381,8 @@ def _fields(model):
         ),
     ],
 )
-def test_bad_models_are_refused_and_never_written(tmp_path, change, message):
-    model = solve(make_traj(n=3, seed=8), fingertip_map=_standin_map)
+def test_bad_models_are_refused_and_never_written(make_traj, standin_map, tmp_path, change, message):
+    model = solve(make_traj(n=3, seed=8), fingertip_map=standin_map)
     d = _fields(model)
     d["cov"] = np.array(d["cov"])
     change(d)
@@ -421,8 +397,8 @@ def test_bad_models_are_refused_and_never_written(tmp_path, change, message):
         VariationModel.load(tmp_path / "bad.model.npz")
 
 
-def test_a_failed_save_leaves_no_partial_file(tmp_path, monkeypatch):
-    model = solve(make_traj(n=3, seed=9), fingertip_map=_standin_map)
+def test_a_failed_save_leaves_no_partial_file(make_traj, standin_map, tmp_path, monkeypatch):
+    model = solve(make_traj(n=3, seed=9), fingertip_map=standin_map)
 
     def boom(*args, **kwargs):
         raise OSError("disk full")
@@ -433,7 +409,7 @@ def test_a_failed_save_leaves_no_partial_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_singular_factor_covariance_is_a_clear_error():
+def test_a_singular_factor_covariance_is_a_clear_error(make_traj):
     traj = make_traj(n=3, seed=10)
     params = VariationParams(sigma_m_std_config=[1e-3] * 19, joint_floor_std_deg=0.0)
     # Sigma_r is rank 6 and the override is tiny but positive: still positive definite
@@ -454,14 +430,14 @@ EP_EXACT = VariationParams(
 )
 
 
-def _independent_joints_traj(joints, n=2):
+def _independent_joints_traj(make_traj, joints, n=2):
     """n steps at the joint values ``joints`` (13,), no retargeting covariance: with ``EP_EXACT`` every
     joint's f_1t is an independent N(joints_i, sigma_i^2)."""
     traj = make_traj(n=n, coupled=False, seed=3)
     return dataclasses.replace(traj, joints=np.tile(joints, (n, 1)), cov_retarget=np.zeros((n, 19, 19)))
 
 
-def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints():
+def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints(make_traj):
     """Steps without smoothness coupling, independent joints N(tau_i, sigma_i^2): the posterior of each joint
     under the limits is that normal truncated to [lo, hi], and expectation propagation with one site per
     joint is exact. Joint 0 sits 0.2 sigma inside its lower limit, joint 1 half a sigma beyond its upper
@@ -473,7 +449,7 @@ def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints()
     lo[:3], hi[:3] = [0.0, -0.5, 0.1], [0.6, 0.2, 0.9]
     tau = np.full(13, 0.3)
     tau[:3] = [lo[0] + 0.2 * sigma[0], hi[1] + 0.5 * sigma[1], lo[2] - 2.0 * sigma[2]]
-    model = solve(_independent_joints_traj(tau), EP_EXACT, joint_limits=np.stack([lo, hi], axis=1))
+    model = solve(_independent_joints_traj(make_traj, tau), EP_EXACT, joint_limits=np.stack([lo, hi], axis=1))
     mean, var = truncnorm.stats((lo - tau) / sigma, (hi - tau) / sigma, loc=tau, scale=sigma, moments="mv")
     for t in range(2):
         np.testing.assert_allclose(model.joints_mean[t], mean, rtol=0, atol=1e-9)
@@ -484,7 +460,7 @@ def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints()
     assert 0.55 * sigma[0] < math.sqrt(model.cov[0][6, 6]) < sigma[0]
 
 
-def test_joint_limits_on_a_chain_agree_with_rejection_sampling():
+def test_joint_limits_on_a_chain_agree_with_rejection_sampling(make_traj):
     """Six steps of joint 0 coupled by the smoothness factors, its demonstrated values crossing the lower
     limit; the true posterior is the Gaussian chain truncated to [lo, hi] at every step, sampled here by
     rejection (2e5 accepted draws). Expectation propagation's marginal means and stds agree with it to a
@@ -492,7 +468,7 @@ def test_joint_limits_on_a_chain_agree_with_rejection_sampling():
     n, lo0 = 6, 0.0
     tau = np.full(13, 0.3)
     params = dataclasses.replace(EP_EXACT, smoothness_std_config=[0.01] * 19)
-    traj = _independent_joints_traj(tau, n)
+    traj = _independent_joints_traj(make_traj, tau, n)
     joints = traj.joints.copy()
     joints[:, 0] = np.linspace(-0.015, 0.02, n)
     traj = dataclasses.replace(traj, joints=joints)
@@ -518,7 +494,7 @@ def test_joint_limits_on_a_chain_agree_with_rejection_sampling():
     assert np.all(held.joints_mean[:, 0] > lo0)
 
 
-def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit():
+def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit(make_traj):
     """A 'wall' that joint 0 can clear only by going 50 mrad past its lower limit (phi = 0.1 m/rad x
     (lo + 0.2 - J_0), clearance 25 mm): without the limits the means leave them by tens of mrad, as the
     scenes' link constraints bent the SAH's fingers backwards; with them every mean stays inside."""
@@ -547,7 +523,7 @@ def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit():
         (np.tile([np.nan, 1.0], (13, 1)), "joint_limits"),
     ],
 )
-def test_bad_joint_limits_are_refused(limits, message):
+def test_bad_joint_limits_are_refused(make_traj, limits, message):
     with pytest.raises(InputError, match=message):
         solve(make_traj(n=3), joint_limits=limits)
 

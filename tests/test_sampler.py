@@ -2,8 +2,6 @@
 
 import numpy as np
 import pytest
-from test_inference_factors import _standin_map
-from test_inference_model import make_traj
 
 from assets.errors import InputError
 from assets.se3 import (
@@ -21,10 +19,10 @@ ALGEBRA_ATOL = 1e-12
 
 
 @pytest.fixture(scope="module")
-def models():
+def models(make_traj, standin_map):
     return [
-        solve(make_traj(n=6, seed=11), fingertip_map=_standin_map),
-        solve(make_traj(n=4, seed=12), fingertip_map=_standin_map),
+        solve(make_traj(n=6, seed=11), fingertip_map=standin_map),
+        solve(make_traj(n=4, seed=12), fingertip_map=standin_map),
     ]
 
 
