@@ -3,8 +3,8 @@
 The model is ``assets/hands/sah/sah.urdf`` (see its README for frames, sources and simplifications).
 The wrist frame is the URDF base link: +z along the middle finger, +y towards the thumb/index side,
 +x out of the palm (the side the fingers flex towards). The 13 actuated joints, in the order used by
-every 13-vector and by ``q[6:]``, are :data:`JOINT_NAMES`; the four distal joints copy the middle ones
-1:1 (:func:`expand_mimic`).
+every 13-vector and by ``q[JOINTS]``, are :data:`assets.q_layout.JOINT_NAMES` (re-exported here); the
+four distal joints copy the middle ones 1:1 (:func:`expand_mimic`).
 
 Tangent convention of :func:`fingertip_jacobian`: 19 columns ``[omega (3), v (3), 13 joints]``, the
 wrist pose perturbed on the right, ``T_object_wrist @ Exp(xi)`` (:func:`assets.se3.retract`), as
@@ -21,7 +21,7 @@ import assets
 from assets.q_layout import Q_DIM
 
 from .kinematics import HandModel, collision_radius, load_hand_model
-from .q_layout import TAN_POS, TAN_ROT
+from .q_layout import JOINT_NAMES, TAN_POS, TAN_ROT
 from .se3 import skew
 
 __all__ = [
@@ -44,14 +44,6 @@ __all__ = [
     "fingertip_jacobian",
     "config_cov_from_fingertip_cov",
 ]
-
-JOINT_NAMES: tuple[str, ...] = (
-    "thumb_base", "thumb_abd", "thumb_prox", "thumb_mid",
-    "index_abd", "index_prox", "index_mid",
-    "middle_abd", "middle_prox", "middle_mid",
-    "ring_abd", "ring_prox", "ring_mid",
-)  # fmt: skip
-"""The 13 actuated joints, the order of every SAH joint vector."""
 
 FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring")
 

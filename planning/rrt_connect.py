@@ -67,8 +67,7 @@ class PlannerConfig:
             blocked far from their sample, where closing the hand cannot touch what the sample touched.
         score_stalled: an extension towards a goal sample whose first step is blocked ends at its nearest
             node; score that node (once per node) if it is within ``goal_radius`` of the sample.
-            ``False`` scores only nodes an extension added (the reading of the paper's "the RRT was
-            extended by a sample" before 2026-12-02: on the jam jar in a hole 1 of 10 queries against 8).
+            ``False`` scores only nodes an extension added (docs/method.md: the goal test).
         goal_trees: root goal trees at valid grasps that the start forest did not reach and grow both
             (see the module docstring); ``False`` is the paper's single tree.
         goal_region_tries: with ``goal_trees``, draws of ``goal_sample_fn`` per attempt to root a goal tree

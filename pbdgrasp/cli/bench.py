@@ -1,4 +1,4 @@
-"""``pbdgrasp bench``: the performance figures of every stage, measured in one process (issue 9).
+"""``pbdgrasp bench``: the performance figures of every stage, measured in one process.
 
 Prints a table (the machine first) or, with ``--json``, the full results as JSON on stdout; ``-o`` also
 writes the JSON to a file (atomically). See :mod:`pbdgrasp.bench` for what is measured and how.
