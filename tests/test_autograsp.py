@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from assets import sah
-from pbdgrasp.bench import HAM_GRASP_Q
+from pbdgrasp.bench_fixtures import HAM_GRASP_Q
 from planning.autograsp import AutoGraspConfig, HandCloser, _reduce_patch
 from planning.world import World
 

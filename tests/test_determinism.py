@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from pbdgrasp.bench import _quick_model
+from pbdgrasp.bench_fixtures import quick_model
 from planning.grasp_planner import GraspPlanner, PlanningSettings
 
 # a node budget, not a time budget, ends the unsolved queries: the outcome must not depend on the clock
@@ -42,7 +42,7 @@ def signature(res) -> dict:
 
 @pytest.fixture(scope="module")
 def model():
-    return _quick_model()
+    return quick_model()
 
 
 @pytest.mark.parametrize("name", sorted(SETTINGS))
@@ -67,9 +67,9 @@ def test_different_seeds_give_different_trees(model):
 _OMPL_SCRIPT = """
 import json, sys
 import numpy as np
-from pbdgrasp.bench import _quick_model
+from pbdgrasp.bench_fixtures import quick_model
 from planning.grasp_planner import GraspPlanner, PlanningSettings
-with GraspPlanner("ham", [_quick_model()]) as p:
+with GraspPlanner("ham", [quick_model()]) as p:
     r = p.plan(np.random.default_rng(5), PlanningSettings(planner="ompl", time_limit_s=60.0, num_roots=30))
 print(json.dumps({"success": r.success, "quality": r.quality, "path": r.path.tolist(),
                   "collision_checks": r.collision_checks}))

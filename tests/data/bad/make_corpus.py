@@ -19,7 +19,7 @@ import yaml
 
 import assets
 from inference.solve import solve
-from pbdgrasp.bench import synthetic_trajectory
+from pbdgrasp.bench_fixtures import synthetic_trajectory
 
 HERE = Path(__file__).resolve().parent
 MANIFEST: dict[str, dict] = {}
