@@ -75,7 +75,7 @@ def test_demonstration_error_jacobians_match_numerical(numerical_jacobian):
 
 
 @pytest.mark.parametrize("fixed", [False, True])
-def test_coupled_demonstration_factor_is_one_custom_factor_with_correct_jacobians(fixed):
+def test_coupled_demonstration_factor_is_one_custom_factor_with_correct_jacobians(numerical_jacobian, fixed):
     rng = np.random.default_rng(2)
     O, tau = _random_pose(rng), _random_pose(rng, 0.3)
     W = O.compose(tau).retract(rng.normal(size=6) * 0.1)
@@ -88,7 +88,7 @@ def test_coupled_demonstration_factor_is_one_custom_factor_with_correct_jacobian
         0, 1, 2, tau.matrix(), rng.normal(size=13), _spd(rng), O.matrix() if fixed else None
     )
     assert len(factors) == 1 and isinstance(factors[0], gtsam.CustomFactor)
-    _check_factor(factors[0], values)
+    _check_factor(factors[0], values, numerical_jacobian)
 
 
 def test_block_diagonal_demonstration_factor_uses_builtins_with_the_same_error():
