@@ -336,7 +336,8 @@ def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
 
     Trial ``i`` of every planner uses the same spawned seed, so the planners start from the same roots.
     """
-    from planning.grasp_planner import PLANNERS, GraspPlanner, PlanningSettings
+    from planning.grasp_planner import GraspPlanner, PlanningSettings
+    from planning.planners import PLANNERS
 
     scenes = ("ham",) if config.quick else PLANNING_SCENES
     out = {}

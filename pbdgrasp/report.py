@@ -33,6 +33,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from assets.io import atomic_write
+from planning.planners import REGISTRY
 
 from .figures import planner_style, plot_success, render_best_grasps
 from .paper import PAPER_TABLE1
@@ -47,7 +48,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_PAPER_PLANNERS = ("learned", "baseline")
+_PAPER_PLANNERS = tuple(name for name, spec in REGISTRY.items() if spec.in_paper)
 
 
 @dataclass(frozen=True)

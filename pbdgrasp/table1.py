@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from assets.errors import InputError
-from planning.grasp_planner import PLANNERS, PlanningSettings
+from planning.grasp_planner import PlanningSettings
+from planning.planners import PLANNERS
 
 from .cache import Strategy, prepare_strategy
 from .paper import ROWS
@@ -70,7 +71,7 @@ class Table1Config:
 
     Attributes:
         rows: Table I rows (scene names) in :data:`ROWS` order.
-        planners: planners of :data:`planning.grasp_planner.PLANNERS`.
+        planners: planners of :data:`planning.planners.PLANNERS`.
         trials: planning queries per row and planner (the paper: 100).
         time_limit_s: budget of one query [s]; a failed query costs all of it.
         beta: probability of the uniform strategy in P(Y) (the paper: 0.05).

@@ -34,12 +34,12 @@ from .autograsp import AutoGraspConfig, HandCloser
 from .collision import CollisionChecker
 from .config_space import HandConfigSpace
 from .ompl_peer import plan_ompl
-from .planners import GOAL_REGION_TRIES, PLANNERS, PlannerSpec, planner_spec
+from .planners import PlannerSpec, planner_spec
 from .rrt_connect import PlannerConfig, PlanResult, rrt_connect
 from .scene import Scene, load_scene
 from .world import World
 
-__all__ = ["GOAL_REGION_TRIES", "PLANNERS", "PlanningSettings", "GraspPlanner"]
+__all__ = ["PlanningSettings", "GraspPlanner"]
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from assets import sah
-from assets.q_layout import POSE_DIM, TAN_ROT
+from assets.q_layout import POSE_DIM, TAN_POSE, TAN_ROT
 from assets.se3 import make_pose, q_from_pose, se3_exp
 
 from . import ik
@@ -206,7 +206,7 @@ class StepObjective:
     # x = [wrist body-frame step (6), thumb opposition step (1)]
     def wrist(self, x: np.ndarray) -> np.ndarray:
         """T_object_wrist of ``x``."""
-        return self.T_start @ se3_exp(x[:POSE_DIM])
+        return self.T_start @ se3_exp(x[TAN_POSE])
 
     def ik_joints(self, T: np.ndarray, x: np.ndarray) -> np.ndarray:
         """The per-finger IK's joints at wrist ``T``, with the thumb's opposition of ``x``."""

@@ -7,12 +7,11 @@ and trials already stored there are skipped, so an interrupted run resumes.
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 from tqdm import tqdm
 
 from inference.model import VariationModel
+from planning.planners import REGISTRY
 
 NAME = "plan"
 HELP = "plan grasps in a scene with learned strategies (or the baseline RRT, or OMPL's RRTConnect)"
@@ -31,10 +30,8 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--planner",
         default="learned",
-        help="learned (default), baseline, ompl, bidirectional (learned with goal trees rooted at valid "
-        "grasps, not in the paper) or goal_region (bidirectional whose goal trees are also rooted at "
-        "draws of the last marginal, as OMPL's RRTConnect samples its goal region); checked against "
-        "planning.grasp_planner.PLANNERS",
+        help="; ".join(f"{s.name}: {s.description}" for s in REGISTRY.values()).replace("%", "%%")
+        + " (default learned)",
     )
     p.add_argument("--trials", type=int, default=1)
     p.add_argument("--time-limit-s", type=float, default=10.0)
@@ -47,7 +44,14 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from assets.errors import InputError
-    from pbdgrasp.results_db import finished_keys, insert_trial, open_db, record_from_plan, source_commit
+    from pbdgrasp.results_db import (
+        finished_keys,
+        insert_trial,
+        open_db,
+        params_json,
+        record_from_plan,
+        source_commit,
+    )
     from planning.grasp_planner import GraspPlanner, PlanningSettings
 
     if args.trials < 1:
@@ -88,7 +92,7 @@ def run(args) -> int:
                         trial=trial,
                         seed=int(seeds[trial].generate_state(1)[0]),
                         git_commit=commit,
-                        params_json=json.dumps(params, sort_keys=True),
+                        params_json=params_json(params),
                     ),
                 )
             bar.set_postfix(solved=f"{sum(r.success for r in results)}/{len(results)}")

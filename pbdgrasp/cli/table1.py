@@ -54,7 +54,7 @@ def run(args) -> int:
     from pbdgrasp.paper import ROWS
     from pbdgrasp.report import write_report
     from pbdgrasp.table1 import Table1Config, parse_names, run_table1
-    from planning.grasp_planner import PLANNERS
+    from planning.planners import PLANNERS
 
     if args.workers is not None and args.workers < 0:
         raise InputError(f"--workers: expected >= 0, found {args.workers}")
