@@ -13,6 +13,7 @@ point in the world frame (unit length for the closed forms away from their media
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -42,6 +43,8 @@ def _positive(value: float, name: str) -> float:
 class BoxField:
     """A solid box of half extents ``half_extents_m`` (3,) [m], centred at the origin of ``T_world_box``."""
 
+    lipschitz = 1.0  #: |d(x) - d(y)| <= lipschitz |x - y|
+
     def __init__(self, half_extents_m: np.ndarray, T_world_box: np.ndarray):
         self.half_extents_m = np.array([_positive(h, "half_extents_m") for h in np.ravel(half_extents_m)])
         if self.half_extents_m.shape != (3,):
@@ -67,6 +70,8 @@ class BoxField:
 class CylinderField:
     """A solid cylinder of radius ``radius_m`` and half height ``half_height_m`` [m] along the z axis of
     ``T_world_cylinder``, centred at its origin (pybullet's ``GEOM_CYLINDER``)."""
+
+    lipschitz = 1.0  #: |d(x) - d(y)| <= lipschitz |x - y|
 
     def __init__(self, radius_m: float, half_height_m: float, T_world_cylinder: np.ndarray):
         self.radius_m = _positive(radius_m, "radius_m")
@@ -97,6 +102,8 @@ class CylinderField:
 class SphereField:
     """A solid ball of radius ``radius_m`` [m] centred at ``center_world_m`` (3,)."""
 
+    lipschitz = 1.0  #: |d(x) - d(y)| <= lipschitz |x - y|
+
     def __init__(self, radius_m: float, center_world_m: np.ndarray):
         self.radius_m = _positive(radius_m, "radius_m")
         self.center_world_m = np.asarray(center_world_m, dtype=float).reshape(3)
@@ -116,6 +123,10 @@ class GridField:
     box, and that point's gradient plus the unit vector away from the box: a continuous continuation that
     only matters for grids too small for their use (build them with enough padding).
     """
+
+    #: a bound of |d(x) - d(y)| / |x - y| for samples of a distance field: sqrt(3) for the trilinear
+    #: interpolation (each partial derivative is an interpolated finite difference, <= 1), plus 1 outside
+    lipschitz = math.sqrt(3.0) + 1.0
 
     def __init__(
         self, origin_m: np.ndarray, cell_m: float, values: np.ndarray, T_world_grid: np.ndarray | None = None

@@ -37,10 +37,19 @@ from assets.errors import InputError
 from .kinematics import HandModel, _floats, _rpy_matrix
 from .se3 import make_pose
 
-__all__ = ["CollisionShape", "collision_shapes", "sphere_cover_of", "SphereCover", "hand_sphere_cover"]
+__all__ = [
+    "CollisionShape",
+    "collision_shapes",
+    "sphere_cover_of",
+    "CoverState",
+    "SphereCover",
+    "hand_sphere_cover",
+]
 
 DEFAULT_MAX_BULGE_M = 0.002
 """Largest distance [m] by which a capsule's or sphere's cover leaves the shape."""
+BOUND_MAX_RADIUS_M = 0.04
+"""The largest radius [m] of a bounding sphere of the broad phase (see :attr:`SphereCover.bound_of`)."""
 DEFAULT_BOX_MAX_BULGE_M = 0.005
 """The same for boxes (their corners need many small spheres: 2 mm would take ~1300 for the SAH's palm)."""
 
@@ -130,6 +139,20 @@ def sphere_cover_of(
 
 
 @dataclass(frozen=True)
+class CoverState:
+    """A hand's kinematic state for its sphere cover (:meth:`SphereCover.state`), batch shape (B,).
+
+    Attributes:
+        link_T: (B, G, 4, 4) the poses of the links with spheres, base frame.
+        axes, origins: (B, M, 3) each moving joint's axis and origin, base frame.
+    """
+
+    link_T: np.ndarray
+    axes: np.ndarray
+    origins: np.ndarray
+
+
+@dataclass(frozen=True)
 class SphereCover:
     """The spheres of a hand, with their positions and Jacobians in the base (wrist) frame.
 
@@ -138,6 +161,11 @@ class SphereCover:
         links: (n,) the link of each sphere.
         centers_link_m: (n, 3) each centre in its link's frame [m].
         radii_m: (n,) [m].
+        bound_of: (n,) each sphere's bounding sphere: the spheres of each link, split in halves along
+            their widest axis until each part fits in a sphere of :data:`BOUND_MAX_RADIUS_M` (the broad
+            phase of :class:`inference.clearance.HandClearance`).
+        bound_group: (K,) the link (index into :attr:`group_links`) of each bounding sphere.
+        bound_centers_link_m, bound_radii_m: (K, 3), (K,) the bounding spheres in their link's frame [m].
     """
 
     model: HandModel
@@ -147,6 +175,65 @@ class SphereCover:
     _groups: tuple = field(repr=False, compare=False, default=())
     _moving: tuple = field(repr=False, compare=False, default=())
     _group_of: np.ndarray = field(repr=False, compare=False, default=None)
+
+    def __post_init__(self):
+        c, r = self.centers_link_m, self.radii_m
+        chunks = [ch for _, idx in self._groups for ch in _bisect(c, r, idx, BOUND_MAX_RADIUS_M)]
+        bound_of = np.empty(len(r), dtype=int)
+        for k, idx in enumerate(chunks):
+            bound_of[idx] = k
+        bc = np.array([c[idx].mean(axis=0) for idx in chunks])
+        br = np.array(
+            [np.max(np.linalg.norm(c[idx] - bc[k], axis=1) + r[idx]) for k, idx in enumerate(chunks)]
+        )
+        moves = np.zeros((len(self.links), len(self._moving)))
+        select = np.zeros((len(self._moving), self.model.n))
+        for m, (_, column, multiplier, moved) in enumerate(self._moving):
+            moves[moved, m] = 1.0
+            select[m, column] = multiplier
+        for name, value in (("bound_of", bound_of), ("bound_group", self._group_of[[ch[0] for ch in chunks]]),
+                            ("bound_centers_link_m", bc), ("bound_radii_m", br), ("_moves", moves),
+                            ("_select", select)):  # fmt: skip
+            object.__setattr__(self, name, value)
+
+    @property
+    def group_links(self) -> tuple[str, ...]:
+        """The links with spheres, in the order of the groups (:meth:`state`, :attr:`group_of`)."""
+        return tuple(name for name, _ in self._groups)
+
+    @property
+    def group_of(self) -> np.ndarray:
+        """(n,) each sphere's group (index into :attr:`group_links`)."""
+        return self._group_of
+
+    def state(self, joints: np.ndarray) -> CoverState:
+        """The kinematic state at joints (B, n_joints) [rad] that :meth:`centers_at`, :meth:`bounds` and
+        :meth:`jacobians_at` read (one forward kinematics for all of them)."""
+        joints = np.asarray(joints, dtype=float)
+        poses = self.model.fk(joints)
+        batch = joints.shape[:-1]
+        link_T = np.stack(
+            [np.broadcast_to(poses[link], batch + (4, 4)) for link in self.group_links], axis=-3
+        )
+        axes = np.stack([poses[j.child][..., :3, :3] @ j.axis for j, *_ in self._moving], axis=-2)
+        origins = np.stack([poses[j.child][..., :3, 3] for j, *_ in self._moving], axis=-2)
+        return CoverState(link_T, axes, origins)
+
+    def bounds(self, state: CoverState) -> np.ndarray:
+        """The bounding spheres' centres (B, K, 3) [m] in the base frame (radii :attr:`bound_radii_m`)."""
+        T = state.link_T[..., self.bound_group, :, :]
+        return np.einsum("...kij,kj->...ki", T[..., :3, :3], self.bound_centers_link_m) + T[..., :3, 3]
+
+    def centers_at(self, state: CoverState, b: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Centres (k, 3) [m], base frame, of spheres ``s`` (k,) at the batch entries ``b`` (k,)."""
+        T = state.link_T[b, self._group_of[s]]
+        return np.einsum("kij,kj->ki", T[:, :3, :3], self.centers_link_m[s]) + T[:, :3, 3]
+
+    def jacobians_at(self, state: CoverState, b: np.ndarray, s: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Jacobians (k, 3, n_joints) [m/rad] of the centres ``c`` (k, 3) of spheres ``s`` at batch ``b``."""
+        lever = c[:, None, :] - state.origins[b]  # (k, M, 3)
+        columns = np.cross(state.axes[b], lever) * self._moves[s][:, :, None]
+        return np.einsum("kmi,mj->kij", columns, self._select)
 
     @classmethod
     def from_urdf(
@@ -190,16 +277,18 @@ class SphereCover:
         return np.einsum("...ij,...j->...i", T[..., :3, :3], self.centers_link_m) + T[..., :3, 3]
 
     def centers_and_jacobians(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Centres (n, 3) in the base frame [m] and their Jacobians (n, 3, n_joints) [m/rad] at joints
-        (n_joints,) [rad]; a mimic joint adds its multiplier times its column to the joint it copies."""
+        """Centres (..., n, 3) in the base frame [m] and their Jacobians (..., n, 3, n_joints) [m/rad] at
+        joints (..., n_joints) [rad]; a mimic joint adds its multiplier times its column to the joint it
+        copies."""
         joints = np.asarray(joints, dtype=float)
         poses = self.model.fk(joints)
         c = self.centers(joints, poses)
-        J = np.zeros((len(self), 3, self.model.n))
+        J = np.zeros(joints.shape[:-1] + (len(self), 3, self.model.n))
         for joint, column, multiplier, moved in self._moving:
             T = poses[joint.child]
-            axis = T[:3, :3] @ joint.axis
-            J[moved, :, column] += multiplier * np.cross(axis, c[moved] - T[:3, 3])
+            axis = (T[..., :3, :3] @ joint.axis)[..., None, :]
+            column_view = J[..., column]  # (..., n, 3), a view into J
+            column_view[..., moved, :] += multiplier * np.cross(axis, c[..., moved, :] - T[..., None, :3, 3])
         return c, J
 
     def self_pairs(self, rest_joints: np.ndarray | None = None) -> np.ndarray:
@@ -227,6 +316,18 @@ class SphereCover:
                         continue
                 pairs.append(np.column_stack([ii, jj]))
         return np.vstack(pairs) if pairs else np.zeros((0, 2), dtype=int)
+
+
+def _bisect(c: np.ndarray, r: np.ndarray, idx: np.ndarray, max_radius_m: float) -> list[np.ndarray]:
+    """Split the spheres ``idx`` in halves along their widest axis until each part's bounding sphere (about
+    its mean centre) has a radius <= ``max_radius_m`` or one sphere is left."""
+    centre = c[idx].mean(axis=0)
+    if len(idx) == 1 or np.max(np.linalg.norm(c[idx] - centre, axis=1) + r[idx]) <= max_radius_m:
+        return [idx]
+    axis = np.argmax(np.ptp(c[idx], axis=0))
+    order = idx[np.argsort(c[idx, axis], kind="stable")]
+    half = len(order) // 2
+    return _bisect(c, r, order[:half], max_radius_m) + _bisect(c, r, order[half:], max_radius_m)
 
 
 def _moving_joints(model: HandModel, links: tuple[str, ...]) -> tuple:

@@ -1,7 +1,6 @@
 """The factors of the variation model (paper section V) as pure error functions and GTSAM factors.
 
-Variables: ``O`` (Pose3, object in world), ``W_t`` (Pose3, wrist in WORLD), ``J_t`` (13-vector, SAH joints),
-and for constrained steps ``C_t`` (1-vector, the constraint value).
+Variables: ``O`` (Pose3, object in world), ``W_t`` (Pose3, wrist in WORLD), ``J_t`` (13-vector, SAH joints).
 
 * f_1t, the demonstration factor over ``(O, W_t, J_t)`` (or ``(W_t, J_t)`` with O held fixed): error
   ``[Log(tau_r(t)^-1 O^-1 W_t), J_t - joints_r(t)]`` (19,), covariance ``Sigma_r(t) + Sigma_m(t)`` in
@@ -10,10 +9,9 @@ and for constrained steps ``C_t`` (1-vector, the constraint value).
   ``BetweenFactorPose3(O, W_t)`` plus ``PriorFactorVector(J_t)`` (same error, faster).
 * f_2t, smoothness: ``BetweenFactorPose3(W_t, W_t+1, identity)`` and ``BetweenFactorVector(J_t, J_t+1, 0)``
   with the diagonal S_t of :meth:`VariationParams.smoothness_stds`.
-* f_3t, the constraint ``C_t = phi(W_t, J_t)`` linearized at ``(W0, J0)``: error
-  ``C_t - phi0 - G [Log(W0^-1 W_t), J_t - J0]`` with variance 1e-10 (the paper's stand-in for a delta);
-  f_4t is a ``PriorFactorVector`` ``N(r_t, R_t)`` on ``C_t``. ``phi`` may be a vector (one signed distance
-  per hand link), then ``C_t`` and ``r_t`` are vectors and ``G`` has one row per component.
+* f_3t/f_4t, the constraint: one ``gtsam.CustomFactor`` per constrained step over ``(O, W_t, J_t)`` (or
+  ``(W_t, J_t)``), a hinge on the clearance margins of :mod:`inference.clearance` with the small std R_t
+  (:func:`clearance_factors`, evaluated for all steps at once); GTSAM's optimizer relinearizes it.
 
 Jacobians are with respect to GTSAM's right (body) perturbations ``T Exp(xi)``, ``xi = [omega, v]``.
 """
@@ -28,26 +26,23 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.q_layout import JOINTS, N_JOINTS, Q_DIM, TAN_POSE
-from assets.se3 import retract
 
+from .clearance import ClearanceFn
 from .params import VariationParams
 
 __all__ = [
     "demonstration_error",
     "demonstration_factors",
     "smoothness_factors",
-    "linear_constraint_error",
-    "constraint_factors",
-    "constraint_gradient",
+    "clearance_error",
+    "ClearanceBatch",
+    "clearance_factor",
+    "clearance_factors",
     "modeling_covariance",
     "is_block_diagonal",
 ]
 
 FingertipMap = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-ConstraintFn = Callable[[np.ndarray, np.ndarray], "float | np.ndarray"]
-ConstraintGradientFn = Callable[[np.ndarray, np.ndarray], "tuple[np.ndarray, np.ndarray]"]
-"""``(T_world_wrist (4, 4), joints (13,)) -> (phi (m,), grad (m, 19))``, grad in the tangent of
-:func:`constraint_gradient`: an analytic alternative to its central differences."""
 
 
 def demonstration_error(
@@ -176,108 +171,122 @@ def smoothness_factors(key_w0: int, key_w1: int, key_j0: int, key_j1: int, stds:
     ]
 
 
-def linear_constraint_error(
-    C: np.ndarray,
-    W: gtsam.Pose3,
-    J: np.ndarray,
-    W0: gtsam.Pose3,
-    J0: np.ndarray,
-    phi0,
-    grad: np.ndarray,
-    jacobians: bool = False,
-):
-    """f_3t error ``C - phi0 - G [Log(W0^-1 W), J - J0]`` (m,), optionally with Jacobians.
-
-    ``phi0`` is a scalar or (m,) and ``grad`` (19,) or ``G`` (m, 19): one row per constraint (e.g. one per
-    hand link near an obstacle).
-
-    Returns:
-        ``e`` (m,), or ``(e, H_C (m, m), H_W (m, 6), H_J (m, 13))``.
-    """
-    phi0 = np.atleast_1d(np.asarray(phi0, dtype=float))
-    G = np.atleast_2d(np.asarray(grad, dtype=float))
-    d = W0.between(W)
-    xi = gtsam.Pose3.Logmap(d)
-    e = np.asarray(C, dtype=float) - phi0 - G[:, TAN_POSE] @ xi - G[:, JOINTS] @ (np.asarray(J) - J0)
-    if not jacobians:
-        return e
-    H_W = np.asfortranarray(-(G[:, TAN_POSE] @ gtsam.Pose3.LogmapDerivative(d)))
-    return e, np.asfortranarray(np.eye(len(e))), H_W, np.asfortranarray(-G[:, JOINTS])
+def clearance_error(margins: np.ndarray) -> np.ndarray:
+    """The hinge ``min(margin, 0)`` (m,): zero where a clearance holds, else the violation [m]."""
+    return np.minimum(np.asarray(margins, dtype=float), 0.0)
 
 
-def constraint_factors(
-    key_c: int,
-    key_w: int,
-    key_j: int,
-    T_world_wrist0: np.ndarray,
-    joints0: np.ndarray,
-    phi0,
-    grad: np.ndarray,
-    r_t,
-    R_std: float,
-    delta_variance: float,
-) -> list:
-    """f_3t (linearized at ``(T_world_wrist0, joints0)``) and f_4t ``N(r_t, R_std^2 I)`` on ``C_t``.
+class ClearanceBatch:
+    """Evaluates a clearance function for every step of a graph in one vectorized call.
+
+    GTSAM asks each step's clearance factor for its error (and Jacobians) one at a time, always with the
+    whole ``gtsam.Values`` of the graph. The first factor of a pass finds its inputs changed, evaluates all
+    steps whose variables are in those values at once and keeps the results; the other factors of the pass
+    find theirs unchanged and read them. A result is reused only for bit-identical inputs, so this changes
+    what is computed per call, never the values GTSAM sees.
 
     Args:
-        phi0: the constraint value(s) at the linearization point, scalar or (m,).
-        grad: (19,) or (m, 19) gradient(s) of phi in the tangent ``[omega, v, joints]`` there.
-        r_t: the target(s), scalar or (m,); ``C_t`` is an m-vector.
+        clearance: the margins, batched over leading axes (:class:`inference.clearance.HandClearance`).
+        steps: per step ``(key_w, key_j)``.
+        key_o: the key of O, or None with ``T_world_object`` given (O fixed there).
     """
-    W0 = gtsam.Pose3(np.asarray(T_world_wrist0, dtype=float))
-    J0 = np.array(joints0, dtype=float)
-    phi = np.atleast_1d(np.asarray(phi0, dtype=float))
-    G = np.atleast_2d(np.asarray(grad, dtype=float))
-    r = np.atleast_1d(np.asarray(r_t, dtype=float))
-    m = len(phi)
-    if G.shape != (m, Q_DIM) or r.shape != (m,):
-        raise InputError(f"constraint factors: phi0 {phi.shape}, grad {G.shape} and r_t {r.shape} disagree")
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
-        C = values.atVector(key_c)
-        W = values.atPose3(key_w)
-        J = values.atVector(key_j)
-        if H is None:
-            return linear_constraint_error(C, W, J, W0, J0, phi, G)
-        e, H[0], H[1], H[2] = linear_constraint_error(C, W, J, W0, J0, phi, G, jacobians=True)
-        return e
+    def __init__(self, clearance: ClearanceFn, steps, key_o: int | None, T_world_object=None):
+        self.clearance = clearance
+        self.steps = [tuple(s) for s in steps]
+        self.key_o = key_o
+        self.T_world_object = None if T_world_object is None else np.asarray(T_world_object, dtype=float)
+        self._cache: dict[int, tuple] = {}
 
-    delta = gtsam.noiseModel.Isotropic.Sigma(m, math.sqrt(delta_variance))
-    return [
-        gtsam.CustomFactor(delta, [key_c, key_w, key_j], error),
-        gtsam.PriorFactorVector(key_c, r, gtsam.noiseModel.Isotropic.Sigma(m, R_std)),
-    ]
+    def _inputs(self, values: gtsam.Values, i: int):
+        key_w, key_j = self.steps[i]
+        return values.atPose3(key_w).matrix(), values.atVector(key_j)
+
+    def _object(self, values: gtsam.Values) -> np.ndarray:
+        return self.T_world_object if self.key_o is None else values.atPose3(self.key_o).matrix()
+
+    def evaluate(self, i: int, values: gtsam.Values, jacobians: bool) -> tuple:
+        """Step ``i``'s ``margins`` (m,) or ``(margins, H_O, H_W, H_J)`` at ``values``."""
+        O = self._object(values)
+        W, J = self._inputs(values, i)
+        hit = self._cache.get(i)
+        if (
+            hit is not None
+            and (hit[4] is not None or not jacobians)
+            and np.array_equal(hit[0], O)
+            and np.array_equal(hit[1], W)
+            and np.array_equal(hit[2], J)
+        ):
+            return hit[3] if not jacobians else (hit[3], *hit[4])
+        present = [k for k, (kw, kj) in enumerate(self.steps) if values.exists(kw) and values.exists(kj)]
+        inputs = [self._inputs(values, k) for k in present]
+        Ws, Js = np.stack([w for w, _ in inputs]), np.stack([j for _, j in inputs])
+        out = self.clearance(O, Ws, Js, jacobians=jacobians)
+        margins = out[0] if jacobians else out
+        self._cache = {
+            k: (O, Ws[n], Js[n], margins[n], tuple(H[n] for H in out[1:]) if jacobians else None)
+            for n, k in enumerate(present)
+        }
+        hit = self._cache[i]
+        return hit[3] if not jacobians else (hit[3], *hit[4])
 
 
-def constraint_gradient(
-    constraint_fn: ConstraintFn, T_world_wrist: np.ndarray, joints: np.ndarray, step: float
-) -> tuple:
-    """phi and its gradient in the tangent ``[omega, v, joints]`` by central differences.
+def clearance_factors(
+    key_o: int | None,
+    steps,
+    clearance: ClearanceFn,
+    std_m: float,
+    T_world_object: np.ndarray | None = None,
+) -> list[gtsam.CustomFactor]:
+    """f_3t/f_4t of the given steps: per step a hinge on the clearance margins of ``(O, W_t, J_t)``,
+    Gaussian, std ``std_m``; the steps share one :class:`ClearanceBatch`.
 
-    A scalar ``constraint_fn`` gives ``(phi0 float, grad (19,))``, a vector one (m,) gives
-    ``(phi0 (m,), grad (m, 19))``. The wrist is perturbed on the right, ``T_world_wrist Exp(+-step e_i)``,
-    as GTSAM's retract.
+    The paper ties a constraint variable ``C_t = phi(X_t)`` (variance ~0) to a prior ``N(r_t, R_t)``;
+    with ``C_t`` marginalized out that is a Gaussian factor ``N(phi(X_t); r_t, R_t)``. Here ``phi`` is the
+    margin vector of ``clearance`` (:mod:`inference.clearance`), ``r_t`` its clearance (margin 0) and the
+    factor one-sided: error ``min(margin, 0)`` per row, so that a row acts only where the clearance is
+    violated. GTSAM relinearizes it at every iteration of its optimizer.
+
+    Args:
+        key_o: GTSAM key of O; unused when ``T_world_object`` is given.
+        steps: per step ``(key_w, key_j)``, the keys of W_t and J_t.
+        clearance: the margins and their Jacobians, batched over leading axes.
+        std_m: the std of each row [m] (the paper's R_t).
+        T_world_object: (4, 4) if given, O is held fixed there and the factors are over ``(W_t, J_t)``.
     """
-    T = np.asarray(T_world_wrist, dtype=float)
-    joints = np.asarray(joints, dtype=float)
-    value = np.asarray(constraint_fn(T, joints), dtype=float)
-    phi0 = np.atleast_1d(value)
-    grad = np.zeros((len(phi0), Q_DIM))
-    for i in range(Q_DIM):
-        d = np.zeros(Q_DIM)
-        d[i] = step
-        plus = np.atleast_1d(
-            np.asarray(constraint_fn(retract(T, d[TAN_POSE]), joints + d[JOINTS]), dtype=float)
-        )
-        minus = np.atleast_1d(
-            np.asarray(constraint_fn(retract(T, -d[TAN_POSE]), joints - d[JOINTS]), dtype=float)
-        )
-        grad[:, i] = (plus - minus) / (2 * step)
-    if not (np.all(np.isfinite(phi0)) and np.all(np.isfinite(grad))):
-        raise InputError(f"constraint function returned a non-finite value (phi = {phi0.tolist()})")
-    if value.ndim == 0:
-        return float(phi0[0]), grad[0]
-    return phi0, grad
+    if not (np.isfinite(std_m) and std_m > 0):
+        raise InputError(f"clearance factor: std must be > 0, found {std_m!r}")
+    noise = gtsam.noiseModel.Isotropic.Sigma(clearance.dim, float(std_m))
+    fixed = T_world_object is not None
+    batch = ClearanceBatch(clearance, steps, None if fixed else key_o, T_world_object)
+
+    def make(i: int) -> gtsam.CustomFactor:
+        def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
+            if H is None:
+                return clearance_error(batch.evaluate(i, values, False))
+            margins, H_O, H_W, H_J = batch.evaluate(i, values, True)
+            active = (margins < 0)[:, None]  # the hinge's inactive rows have no Jacobian
+            blocks = (H_W, H_J) if fixed else (H_O, H_W, H_J)
+            for k, block in enumerate(blocks):
+                H[k] = np.asfortranarray(np.where(active, block, 0.0))
+            return clearance_error(margins)
+
+        keys = list(batch.steps[i]) if fixed else [key_o, *batch.steps[i]]
+        return gtsam.CustomFactor(noise, keys, error)
+
+    return [make(i) for i in range(len(batch.steps))]
+
+
+def clearance_factor(
+    key_o: int | None,
+    key_w: int,
+    key_j: int,
+    clearance: ClearanceFn,
+    std_m: float,
+    T_world_object: np.ndarray | None = None,
+) -> gtsam.CustomFactor:
+    """The clearance factor of one step (:func:`clearance_factors` of ``[(key_w, key_j)]``)."""
+    return clearance_factors(key_o, [(key_w, key_j)], clearance, std_m, T_world_object)[0]
 
 
 def modeling_covariance(

@@ -3,12 +3,12 @@ its starting point.
 
 The graph is P(O) P(X_1..X_T | O): an SE(3) prior O ~ N(mu_o, Sigma_o) (``PriorFactorPose3``), per step
 the demonstration factor f_1t tying (O, W_t, J_t) to tau_r(t) with Sigma_r(t) + Sigma_m(t), the
-smoothness factors f_2t between consecutive steps and, for the steps in ``linearizations``, the
-linearized constraint factors f_3t/f_4t (:mod:`inference.factors`). With ``fixed_object`` the object is
+smoothness factors f_2t between consecutive steps and, for the steps in ``constrained``, the clearance
+factor f_3t/f_4t (:func:`inference.factors.clearance_factor`). With ``fixed_object`` the object is
 held at mu_o: the graph of P(X | O = mu_o), whose ``gtsam.Marginals`` are the conditional marginals
 (equal to the Schur complement of the full graph's joint covariance; tests compare both). Variables:
-``W_t`` wrist pose in the world frame (``Pose3``), ``J_t`` the 13 joints (vector), ``C_t`` a constrained
-step's constraint values (vector).
+``W_t`` wrist pose in the world frame (``Pose3``), ``J_t`` the 13 joints (vector)
+(no constraint variables: the clearance factor is the paper's f_3t/f_4t pair with C_t marginalized out).
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ import numpy as np
 from assets.errors import InputError
 from retarget.trajectory import Trajectory
 
+from .clearance import ClearanceFn
 from .factors import (
     FingertipMap,
-    constraint_factors,
+    clearance_factors,
     demonstration_factors,
     modeling_covariance,
     smoothness_factors,
@@ -32,7 +33,6 @@ __all__ = [
     "key_o",
     "key_w",
     "key_j",
-    "key_c",
     "factor_covariances",
     "build_graph",
     "initial_values",
@@ -53,11 +53,6 @@ def key_w(t: int) -> int:
 def key_j(t: int) -> int:
     """GTSAM key of the joints J_t."""
     return gtsam.symbol("j", t)
-
-
-def key_c(t: int) -> int:
-    """GTSAM key of the constraint value C_t."""
-    return gtsam.symbol("c", t)
 
 
 def factor_covariances(
@@ -88,18 +83,18 @@ def build_graph(
     cov_f1: np.ndarray,
     T_world_object: np.ndarray,
     cov_object: np.ndarray | None,
-    linearizations: dict | None = None,
+    clearance: ClearanceFn | None = None,
+    constrained=(),
     fixed_object: bool = False,
 ) -> gtsam.NonlinearFactorGraph:
-    """The factor graph P(O) P(X_1..X_T | O) (and the constraint factors of ``linearizations``).
+    """The factor graph P(O) P(X_1..X_T | O) (and the clearance factors of the ``constrained`` steps).
 
     Args:
         traj: tau_r and Sigma_r.
         params: parameters (smoothness, constraint noise).
         cov_f1: (T, 19, 19) Sigma_r + Sigma_m (:func:`factor_covariances`).
         T_world_object: (4, 4) mu_o. cov_object: (6, 6) Sigma_o ``[omega, v]``.
-        linearizations: ``{t: (T_world_wrist0, joints0, phi0 (m,), grad (m, 19), r_t (m,))}`` for constrained
-            steps (scalars and (19,) for one constraint).
+        clearance: the margins of the clearance factors; constrained: the steps that get one.
         fixed_object: hold O fixed at ``T_world_object`` (the graph of P(X | O = mu_o); no O variable, no
             prior, ``cov_object`` unused).
     """
@@ -129,19 +124,11 @@ def build_graph(
         if t + 1 < n:
             for f in smoothness_factors(key_w(t), key_w(t + 1), key_j(t), key_j(t + 1), stds):
                 graph.add(f)
-    for t, (T0, j0, phi0, grad, r_t) in (linearizations or {}).items():
-        for f in constraint_factors(
-            key_c(t),
-            key_w(t),
-            key_j(t),
-            T0,
-            j0,
-            phi0,
-            grad,
-            r_t,
-            params.constraint_std_mm * 1e-3,
-            params.constraint_delta_variance,
-        ):
+    std_m = params.constraint_std_mm * 1e-3
+    steps = [(key_w(t), key_j(t)) for t in constrained]
+    if steps:
+        fixed = T_world_object if fixed_object else None
+        for f in clearance_factors(key_o(), steps, clearance, std_m, fixed):
             graph.add(f)
     return graph
 

@@ -18,30 +18,19 @@ Every field has the paper's default (or a documented choice where the paper is s
     # configuration-space overrides: 19 stds [omega (3, rad), v (3, m), joints (13, rad)]; replace the above
     sigma_m_std_config: null
     smoothness_std_config: null
-    # linearized constraint factors f_3t, f_4t (section V-B), used only with a scene
-    clearance_mm: 10.0                    # r_t = phi(tau_r(t)) clipped to [clearance, activation]
-    object_clearance_mm: 3.0              # the same for the components that measure the grasped object
-    constraint_std_mm: 2.0                # R_t = constraint_std^2 (5 left the thumb 10 mm in ham_arc's wall)
-    activation_distance_mm: 30.0          # constrain only components of phi that come below this
-    constraint_delta_variance: 1.0e-10    # the Gaussian standing in for delta(c - phi(x))
-    gradient_step: 1.0e-3                 # central-difference step of grad phi in the 19-D tangent [rad, m];
-                                          # pybullet distances are noisy at ~1e-6 m: 1e-5 did not converge
+    # clearance factors f_3t, f_4t (section V-B), used only with a scene: hinges on the clearance
+    clearance_mm: 10.0                    # of the hand's spheres from the table and the obstacles
+    object_clearance_mm: 3.0              # from the grasped object
+    self_clearance_mm: 2.0                # between spheres of phalanges of different fingers
+    constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
     joint_limit_min_probability: 1.0e-4   # a joint whose marginal puts more beyond a limit gets a site
     joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
     joint_limit_max_iterations: 50        # EP updates on the final graph
-    joint_limit_tolerance: 1.0e-5         # stop when no joint's marginal mean or std moves more [rad]
-    # relinearization loop (section VI) and the Gauss-Newton solve inside it
-    max_iterations: 100                   # the damped loop converges linearly (means moving ~10 % less
-                                          # per solve): ham converges in 62; at 20 still 3 mm a solve
-    mean_tolerance: 1.0e-4                # stop when marginal means move less than this [rad, m]
-    relinearization_damping: 0.5          # the next linearization point moves this fraction of the way
-                                          # to the new means (damped loopy belief propagation)
-    trust_position_mm: 10.0               # trust region of one relinearization step: while iterating, a
-    trust_rotation_deg: 5.0               # Gaussian prior with these stds ties each constrained step to
-    trust_joint_deg: 5.0                  # its linearization point (dropped for the final solve)
-    gauss_newton_max_iterations: 100
-    gauss_newton_relative_tolerance: 1.0e-10  # relative change of the squared error
+    joint_limit_tolerance: 1.0e-3         # stop when no joint's marginal mean or std moves more [rad]
+    # GTSAM's Levenberg-Marquardt (section VI: the optimizer relinearizes every factor per iteration)
+    max_iterations: 100                   # per solve
+    relative_error_tolerance: 1.0e-5      # converged when the error decreases relatively less than this
 
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
 covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian (the same
@@ -84,22 +73,14 @@ class VariationParams:
     smoothness_std_config: tuple[float, ...] | None = field(default=None)
     clearance_mm: float = 10.0
     object_clearance_mm: float = 3.0
+    self_clearance_mm: float = 2.0
     constraint_std_mm: float = 2.0
-    activation_distance_mm: float = 30.0
-    constraint_delta_variance: float = 1e-10
-    gradient_step: float = 1e-3
     joint_limit_min_probability: float = 1e-4
     joint_limit_damping: float = 0.5
     joint_limit_max_iterations: int = 50
-    joint_limit_tolerance: float = 1e-5
+    joint_limit_tolerance: float = 1e-3
     max_iterations: int = 100
-    mean_tolerance: float = 1e-4
-    relinearization_damping: float = 0.5
-    trust_position_mm: float = 10.0
-    trust_rotation_deg: float = 5.0
-    trust_joint_deg: float = 5.0
-    gauss_newton_max_iterations: int = 100
-    gauss_newton_relative_tolerance: float = 1e-10
+    relative_error_tolerance: float = 1e-5
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -116,7 +97,7 @@ class VariationParams:
                     raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
                 continue
-            is_int = f.name in ("max_iterations", "gauss_newton_max_iterations", "joint_limit_max_iterations")
+            is_int = f.name in ("max_iterations", "joint_limit_max_iterations")
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
             if is_int:
@@ -125,11 +106,16 @@ class VariationParams:
                 object.__setattr__(self, f.name, int(value))
                 continue
             value = float(value)
-            if f.name in ("relinearization_damping", "joint_limit_damping") and not 0.0 < value <= 1.0:
+            if f.name == "joint_limit_damping" and not 0.0 < value <= 1.0:
                 raise InputError(f"{f.name}: expected a fraction in (0, 1], found {value!r}")
             if f.name == "joint_limit_min_probability" and not 0.0 < value < 1.0:
                 raise InputError(f"{f.name}: expected a probability in (0, 1), found {value!r}")
-            allow_zero = f.name in ("joint_floor_std_deg", "clearance_mm", "object_clearance_mm")
+            allow_zero = f.name in (
+                "joint_floor_std_deg",
+                "clearance_mm",
+                "object_clearance_mm",
+                "self_clearance_mm",
+            )
             if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
                 raise InputError(
                     f"{f.name}: expected a finite number {'>=' if allow_zero else '>'} 0, found {value!r}"
@@ -147,10 +133,6 @@ class VariationParams:
             get("wrist_position_std_mm") * 1e-3,
             math.radians(get("wrist_rotation_std_deg")),
         )
-
-    def trust_stds(self) -> np.ndarray:
-        """The 19 stds of the relinearization trust region, ``[omega (rad), v (m), joints (rad)]``."""
-        return _config_stds(self.trust_rotation_deg, self.trust_position_mm, self.trust_joint_deg)
 
     def smoothness_stds(self) -> np.ndarray:
         """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""

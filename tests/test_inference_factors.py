@@ -6,11 +6,14 @@ import gtsam
 import numpy as np
 import pytest
 
+from assets import sah
+from assets.distance_fields import BoxField, GridField, SphereField
 from assets.errors import InputError
-from assets.se3 import retract, se3_exp
+from assets.se3 import make_pose, se3_exp
+from assets.sphere_cover import hand_sphere_cover
+from inference.clearance import HandClearance
 from inference.factors import (
-    constraint_factors,
-    constraint_gradient,
+    clearance_factor,
     demonstration_error,
     demonstration_factors,
     is_block_diagonal,
@@ -112,48 +115,96 @@ def test_block_diagonal_demonstration_factor_uses_builtins_with_the_same_error()
     assert math.isclose(chi2, expected @ np.linalg.solve(cov, expected), rel_tol=1e-9)
 
 
-def test_constraint_factor_jacobians_and_delta_noise(numerical_jacobian):
-    rng = np.random.default_rng(4)
-    W0 = _random_pose(rng)
-    J0 = rng.normal(size=13)
-    grad = rng.normal(size=19)
-    f3, f4 = constraint_factors(
-        7, 1, 2, W0.matrix(), J0, 0.3, grad, r_t=0.01, R_std=0.005, delta_variance=1e-10
+def _hand_in_a_scene():
+    """The SAH's cover against a table (closed-form box) and a ball-shaped object (a grid field in the
+    object frame), with a 50 mm self clearance so that self rows are violated too; a configuration with
+    the fingers through the table and the object, and the object moved off the origin."""
+    cover = hand_sphere_cover("sah")
+    table = BoxField(np.array([0.6, 0.4, 0.025]), make_pose(np.eye(3), [0, 0, -0.025]))
+    ball = SphereField(0.04, np.array([0.0, 0.0, 0.05]))
+    ball_grid = GridField.from_function(lambda p: ball.distance(p)[0], [-0.1] * 3, [0.1, 0.1, 0.2], 0.004)
+    clearance = HandClearance(cover, [table], ball_grid, self_clearance_m=0.05, self_pairs=cover.self_pairs())
+    rng = np.random.default_rng(9)
+    O = gtsam.Pose3(se3_exp(np.r_[0.05 * rng.normal(size=3), 0.01 * rng.normal(size=3)]))
+    R_down = np.diag([1.0, -1.0, -1.0])  # fingers (+z of the wrist) pointing down
+    W = gtsam.Pose3(make_pose(R_down, [0.06, 0.0, 0.2]) @ se3_exp(0.02 * rng.normal(size=6)))
+    J = sah.rest_joints() + np.deg2rad(rng.uniform(-5, 5, size=13))
+    return clearance, O, W, J
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_clearance_factor_jacobians_match_numerical_through_o_w_and_j(numerical_jacobian, fixed):
+    clearance, O, W, J = _hand_in_a_scene()
+    margins = clearance(O.matrix(), W.matrix(), J)
+    n = clearance.n_spheres
+    env, obj, pairs = _dense_margins(clearance, O.matrix(), W.matrix(), J)
+    assert np.sum((env < 0) & (env < obj)) >= 3 and np.sum((obj < 0) & (obj < env)) >= 3
+    assert np.sum(pairs < 0) >= 3 and np.sum(margins[n:] < 0) >= 3  # table, object, self rows all active
+    factor = clearance_factor(
+        None if fixed else 0, 1, 2, clearance, 0.002, T_world_object=O.matrix() if fixed else None
     )
     values = gtsam.Values()
-    values.insert(7, np.array([0.25]))
-    values.insert(1, W0.retract(rng.normal(size=6) * 0.2))
-    values.insert(2, J0 + rng.normal(size=13) * 0.1)
-    _check_factor(f3, values, numerical_jacobian)
-    assert math.isclose(f3.noiseModel().sigmas()[0] ** 2, 1e-10, rel_tol=1e-12)
-    # at the linearization point the error is C - phi0
-    values.update(1, W0)
-    values.update(2, J0)
-    np.testing.assert_allclose(f3.unwhitenedError(values), [0.25 - 0.3], atol=1e-12)
-    np.testing.assert_allclose(f4.unwhitenedError(values), [0.25 - 0.01], atol=1e-12)
+    if not fixed:
+        values.insert(0, O)
+    values.insert(1, W)
+    values.insert(2, J)
+    _check_factor(factor, values, numerical_jacobian)
+    np.testing.assert_allclose(factor.unwhitenedError(values), np.minimum(margins, 0.0), atol=1e-15)
 
 
-def test_constraint_gradient_of_an_analytic_function():
-    """phi = wrist height + 0.1 * joint 3: in the body tangent d phi / d v = R[2, :], d phi / d omega = 0."""
-    rng = np.random.default_rng(5)
-    T = se3_exp(rng.normal(size=6))
-    joints = rng.normal(size=13)
+def _dense_margins(clearance, T_world_object, T_world_wrist, joints):
+    """The reference without a broad phase: every sphere against every field, every self pair; the
+    environment's and the object's margins (n,) and the pairs' (p,)."""
+    c_wrist = clearance.cover.centers(joints)
+    c_world = c_wrist @ T_world_wrist[:3, :3].T + T_world_wrist[:3, 3]
+    r = clearance.cover.radii_m
+    env = np.min([f.distance(c_world)[0] for f in clearance.environment], axis=0) - clearance.clearance_m - r
+    c_object = (c_world - T_world_object[:3, 3]) @ T_world_object[:3, :3]
+    obj = clearance.object_field.distance(c_object)[0] - clearance.object_clearance_m - r
+    i, j = clearance.self_pairs.T
+    pairs = np.linalg.norm(c_wrist[i] - c_wrist[j], axis=1) - r[i] - r[j] - clearance.self_clearance_m
+    return env, obj, pairs
 
-    def phi(T_world_wrist, q):
-        return T_world_wrist[2, 3] + 0.1 * q[3]
 
-    value, grad = constraint_gradient(phi, T, joints, 1e-5)
-    expected = np.zeros(19)
-    expected[3:6] = T[2, :3]
-    expected[6 + 3] = 0.1
-    assert math.isclose(value, phi(T, joints))
-    assert np.abs(grad - expected).max() < 1e-9
-    # the tangent convention is GTSAM's retract
-    d = np.zeros(6)
-    d[3:] = 1e-3 * rng.normal(size=3)
-    assert math.isclose(phi(retract(T, d), joints) - value, grad[:6] @ d, rel_tol=1e-6)
-    with pytest.raises(InputError, match="non-finite"):
-        constraint_gradient(lambda T, q: float("nan"), T, joints, 1e-5)
+def test_broad_phase_margins_are_exact_where_violated_and_lower_bounds_elsewhere():
+    """Batched margins of many configurations near the table and the object against the dense reference:
+    equal wherever the reference is negative (or the broad phase evaluated the sphere), never above it,
+    and never negative where the reference is not."""
+    clearance, O, W, J = _hand_in_a_scene()
+    rng = np.random.default_rng(4)
+    Ws = W.matrix() @ se3_exp(np.c_[0.3 * rng.normal(size=(12, 3)), 0.04 * rng.normal(size=(12, 3))])
+    Js = J + np.deg2rad(rng.uniform(-20, 20, size=(12, 13)))
+    got = clearance(O.matrix(), Ws, Js)
+    assert got.shape == (12, clearance.dim)
+    violated, bounded = 0, 0
+    for k in range(12):
+        env, obj, pairs = _dense_margins(clearance, O.matrix(), Ws[k], Js[k])
+        ref = np.r_[np.minimum(env, obj), pairs]
+        neg = ref < 0
+        np.testing.assert_allclose(got[k][neg], ref[neg], atol=1e-12)
+        assert np.all(got[k] <= ref + 1e-12) and np.all(got[k][~neg] >= 0)
+        violated += neg.sum()
+        bounded += np.sum(got[k] < ref - 1e-9)
+    assert violated > 100 and bounded > 1000  # both phases are exercised
+    _, H_O, H_W, H_J = clearance(O.matrix(), Ws, Js, jacobians=True)
+    for k in (0, 5):  # the batched Jacobians are the single configuration's
+        single = clearance(O.matrix(), Ws[k], Js[k], jacobians=True)
+        for a, b in zip((H_O[k], H_W[k], H_J[k]), single[1:], strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_clearance_factor_of_a_free_configuration_is_zero_and_refuses_a_bad_std():
+    clearance, O, W, J = _hand_in_a_scene()
+    far = gtsam.Pose3(make_pose(np.eye(3), [0.0, 0.0, 1.0]))
+    free = HandClearance(clearance.cover, clearance.environment, clearance.object_field)
+    factor = clearance_factor(None, 1, 2, free, 0.002, T_world_object=O.matrix())
+    values = gtsam.Values()
+    values.insert(1, far)
+    values.insert(2, J)
+    assert factor.error(values) == 0.0
+    assert np.all(factor.linearize(values).jacobian()[0] == 0.0)
+    with pytest.raises(InputError, match="std must be > 0"):
+        clearance_factor(None, 1, 2, free, 0.0, T_world_object=O.matrix())
 
 
 def test_modeling_covariance_mapping_wrist_terms_and_floor(standin_map):

@@ -128,3 +128,23 @@ def test_a_urdf_with_a_mesh_collision_is_refused(tmp_path):
     )
     with pytest.raises(InputError, match="has no sphere cover"):
         SphereCover.from_urdf(urdf)
+
+
+def test_gathered_centres_bounds_and_jacobians_agree_with_the_dense_ones():
+    """centers_at / jacobians_at at (batch, sphere) entries equal the dense centres and Jacobians; every
+    sphere lies inside its link's bounding sphere."""
+    cover = hand_sphere_cover("sah")
+    rng = np.random.default_rng(5)
+    lo, hi = sah.JOINT_LIMITS.T
+    joints = rng.uniform(lo, hi, size=(4, 13))
+    c_dense, J_dense = cover.centers_and_jacobians(joints)
+    state = cover.state(joints)
+    b = rng.integers(0, 4, 500)
+    s = rng.integers(0, len(cover), 500)
+    c = cover.centers_at(state, b, s)
+    np.testing.assert_allclose(c, c_dense[b, s], atol=1e-14)
+    np.testing.assert_allclose(cover.jacobians_at(state, b, s, c), J_dense[b, s], atol=1e-14)
+    bounds = cover.bounds(state)[:, cover.bound_of]  # (4, n, 3) each sphere's bound
+    gap = np.linalg.norm(c_dense - bounds, axis=-1) + cover.radii_m - cover.bound_radii_m[cover.bound_of]
+    assert gap.max() < 1e-12
+    assert np.all(cover.group_of == cover.bound_group[cover.bound_of])  # a bound holds one link's spheres

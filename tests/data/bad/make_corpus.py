@@ -347,7 +347,7 @@ def params() -> None:
         "smoothness_std_config: [" + ", ".join(["0.01"] * 18 + ["0"]) + "]\n",
         r"smoothness_std_config: every std must be finite and > 0",
     )
-    put("params", "boolean.yaml", "gradient_step: true\n", r"gradient_step: expected a number")
+    put("params", "boolean.yaml", "self_clearance_mm: true\n", r"self_clearance_mm: expected a number")
 
 
 def configurations() -> None:
