@@ -35,6 +35,7 @@ class ClearanceFn(Protocol):
     """``m`` clearance margins [m] of a hand configuration; negative where a constraint is violated."""
 
     dim: int
+    active_margin_m: float  # margins below this are exact and have Jacobians
 
     def __call__(
         self,
@@ -44,7 +45,7 @@ class ClearanceFn(Protocol):
         jacobians: bool = False,
     ):
         """Margins (m,), or with ``jacobians`` ``(margins, H_O (m, 6), H_W (m, 6), H_J (m, 13))``; the
-        Jacobian rows of margins >= 0 may be zero."""
+        rows of margins >= ``active_margin_m`` may be lower bounds with zero Jacobians."""
 
 
 class HandClearance:
@@ -57,6 +58,8 @@ class HandClearance:
         clearance_m, object_clearance_m, self_clearance_m: the required clearances [m].
         self_pairs: (p, 2) sphere index pairs; default ``cover.self_pairs(rest_joints)``.
         rest_joints: (13,) the joints at which touching pairs are found (for the default ``self_pairs``).
+        active_margin_m: margins below this are exact and have Jacobians; the others may be lower bounds
+            (>= it) without (the smooth hinge of :func:`inference.factors.clearance_error` needs its cutoff).
     """
 
     def __init__(
@@ -69,9 +72,11 @@ class HandClearance:
         self_clearance_m: float = 0.002,
         self_pairs: np.ndarray | None = None,
         rest_joints: np.ndarray | None = None,
+        active_margin_m: float = 0.0,
     ):
         for name, value in (("clearance_m", clearance_m), ("object_clearance_m", object_clearance_m),
-                            ("self_clearance_m", self_clearance_m)):  # fmt: skip
+                            ("self_clearance_m", self_clearance_m),
+                            ("active_margin_m", active_margin_m)):  # fmt: skip
             if not (np.isfinite(value) and value >= 0):
                 raise InputError(f"{name}: expected a finite number >= 0, found {value!r}")
         self.cover = cover
@@ -80,6 +85,7 @@ class HandClearance:
         self.clearance_m = float(clearance_m)
         self.object_clearance_m = float(object_clearance_m)
         self.self_clearance_m = float(self_clearance_m)
+        self.active_margin_m = float(active_margin_m)
         pairs = cover.self_pairs(rest_joints) if self_pairs is None else np.asarray(self_pairs, dtype=int)
         if (
             pairs.ndim != 2
@@ -104,14 +110,17 @@ class HandClearance:
 
     def __call__(self, T_world_object, T_world_wrist, joints, jacobians: bool = False):
         """The margins (..., dim) of wrists (..., 4, 4) and joints (..., 13) (a common batch shape) and,
-        with ``jacobians``, ``H_O, H_W`` (..., dim, 6) and ``H_J`` (..., dim, 13), zero where margin >= 0.
+        with ``jacobians``, ``H_O, H_W`` (..., dim, 6) and ``H_J`` (..., dim, 13), zero where margin >=
+        ``active_margin_m``.
 
-        A broad phase bounds each link's spheres by one sphere: where a field's distance at the bound's
-        centre, less its clearance and Lipschitz bound times the bound's radius, is >= 0, no sphere of the
-        link can violate that clearance and the link's rows get that lower bound instead of their margin
-        (likewise for pairs of links in the self rows). Negative margins are always exact.
+        A broad phase bounds groups of a link's spheres by one sphere: where a field's distance at the
+        bound's centre, less its clearance and Lipschitz bound times the bound's radius, is >=
+        ``active_margin_m``, no sphere of the group comes below that and the group's rows get that lower
+        bound instead of their margin (likewise for pairs of groups in the self rows). Margins below
+        ``active_margin_m`` are always exact.
         """
         cover, r, g_of, ns = self.cover, self.cover.radii_m, self.cover.bound_of, self.n_spheres
+        act_m = self.active_margin_m
         T_world_object = np.asarray(T_world_object, dtype=float)
         joints = np.asarray(joints, dtype=float)
         T_world_wrist = np.asarray(T_world_wrist, dtype=float)
@@ -130,7 +139,7 @@ class HandClearance:
             pts = (bound_world - t_O) @ R_O if in_object else bound_world
             d = field.distance(pts.reshape(-1, 3))[0].reshape(B, -1)
             low = d - clearance - lipschitz * cover.bound_radii_m
-            checks.append((field, clearance, in_object, (low < 0)[:, g_of], low[:, g_of]))
+            checks.append((field, clearance, in_object, (low < act_m)[:, g_of], low[:, g_of]))
         qa, qb = self._link_pairs.T
         link_gap = (
             np.linalg.norm(bound_wrist[:, qa] - bound_wrist[:, qb], axis=-1)
@@ -138,7 +147,7 @@ class HandClearance:
             - cover.bound_radii_m[qb]
             - self.self_clearance_m
         )[:, self._pair_link_pair]  # (B, p)
-        pair_near = link_gap < 0
+        pair_near = link_gap < act_m
         # narrow phase, on the entries (batch, sphere) some check needs
         need = np.zeros((B, ns), dtype=bool)
         for *_, near, _ in checks:
@@ -180,9 +189,9 @@ class HandClearance:
         H_O = np.zeros((B, self.dim, 6))
         H_W = np.zeros((B, self.dim, 6))
         H_J = np.zeros((B, self.dim, J.shape[-1]))
-        act = np.flatnonzero(m_e < 0)  # active sphere rows, as entries
+        act = np.flatnonzero(m_e < act_m)  # active sphere rows, as entries
         ba, sa = bn[act], sn[act]
-        hit = self_margin[bp, pp] < 0
+        hit = self_margin[bp, pp] < act_m
         bs, ps, ei, ej = bp[hit], pp[hit], ei[hit], ej[hit]
         # the Jacobians of the centres that active rows need, once each
         rows = np.unique(np.concatenate([act, ei, ej]))

@@ -35,6 +35,7 @@ __all__ = [
     "demonstration_factors",
     "smoothness_factors",
     "clearance_error",
+    "HINGE_CUTOFF",
     "ClearanceBatch",
     "clearance_factor",
     "clearance_factors",
@@ -171,9 +172,28 @@ def smoothness_factors(key_w0: int, key_w1: int, key_j0: int, key_j1: int, stds:
     ]
 
 
-def clearance_error(margins: np.ndarray) -> np.ndarray:
-    """The hinge ``min(margin, 0)`` (m,): zero where a clearance holds, else the violation [m]."""
-    return np.minimum(np.asarray(margins, dtype=float), 0.0)
+HINGE_CUTOFF = 10.0
+"""Beyond ``HINGE_CUTOFF`` smoothing lengths the smooth hinge is below 5e-5 of one and set to zero."""
+
+
+def clearance_error(margins: np.ndarray, smoothing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The smooth hinge of the clearance margins and its slope.
+
+    ``e(m) = -s softplus(-m / s)`` with ``s = smoothing_m``: ``m`` deep inside the violated side (m << -s),
+    zero far on the free side, differentiable everywhere (slope ``sigmoid(-m / s)`` in (0, 1)); so the
+    information a row adds, and the marginals, change continuously as a sphere nears the clearance (a
+    plain hinge ``min(m, 0)`` switches them on and off, and the joint-limit propagation then cycles).
+    Zero (and slope zero) beyond ``HINGE_CUTOFF * s``.
+
+    Returns:
+        ``(e (m,) [m], de/dm (m,))``.
+    """
+    m = np.asarray(margins, dtype=float)
+    x = -m / smoothing_m
+    softplus = np.maximum(x, 0.0) + np.log1p(np.exp(-np.abs(x)))
+    on = m < HINGE_CUTOFF * smoothing_m
+    slope = np.where(on, 0.5 * (1.0 + np.tanh(0.5 * x)), 0.0)  # sigmoid(x), stable
+    return np.where(on, -smoothing_m * softplus, 0.0), slope
 
 
 class ClearanceBatch:
@@ -236,6 +256,7 @@ def clearance_factors(
     steps,
     clearance: ClearanceFn,
     std_m: float,
+    smoothing_m: float,
     T_world_object: np.ndarray | None = None,
 ) -> list[gtsam.CustomFactor]:
     """f_3t/f_4t of the given steps: per step a hinge on the clearance margins of ``(O, W_t, J_t)``,
@@ -244,18 +265,28 @@ def clearance_factors(
     The paper ties a constraint variable ``C_t = phi(X_t)`` (variance ~0) to a prior ``N(r_t, R_t)``;
     with ``C_t`` marginalized out that is a Gaussian factor ``N(phi(X_t); r_t, R_t)``. Here ``phi`` is the
     margin vector of ``clearance`` (:mod:`inference.clearance`), ``r_t`` its clearance (margin 0) and the
-    factor one-sided: error ``min(margin, 0)`` per row, so that a row acts only where the clearance is
-    violated. GTSAM relinearizes it at every iteration of its optimizer.
+    factor one-sided: per row the smooth hinge of :func:`clearance_error`, ~``min(margin, 0)``, so that a
+    row acts only where the clearance is (nearly) violated. GTSAM relinearizes it at every iteration of its
+    optimizer.
 
     Args:
         key_o: GTSAM key of O; unused when ``T_world_object`` is given.
         steps: per step ``(key_w, key_j)``, the keys of W_t and J_t.
         clearance: the margins and their Jacobians, batched over leading axes.
         std_m: the std of each row [m] (the paper's R_t).
+        smoothing_m: the hinge's smoothing length [m]; ``clearance.active_margin_m`` must be at least
+            ``HINGE_CUTOFF`` times it.
         T_world_object: (4, 4) if given, O is held fixed there and the factors are over ``(W_t, J_t)``.
     """
     if not (np.isfinite(std_m) and std_m > 0):
         raise InputError(f"clearance factor: std must be > 0, found {std_m!r}")
+    if not (np.isfinite(smoothing_m) and smoothing_m > 0):
+        raise InputError(f"clearance factor: smoothing must be > 0, found {smoothing_m!r}")
+    if clearance.active_margin_m < HINGE_CUTOFF * smoothing_m:
+        raise InputError(
+            f"clearance factor: the clearance function's active margin {clearance.active_margin_m!r} m is "
+            f"below the hinge's cutoff {HINGE_CUTOFF * smoothing_m!r} m"
+        )
     noise = gtsam.noiseModel.Isotropic.Sigma(clearance.dim, float(std_m))
     fixed = T_world_object is not None
     batch = ClearanceBatch(clearance, steps, None if fixed else key_o, T_world_object)
@@ -263,13 +294,13 @@ def clearance_factors(
     def make(i: int) -> gtsam.CustomFactor:
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
             if H is None:
-                return clearance_error(batch.evaluate(i, values, False))
+                return clearance_error(batch.evaluate(i, values, False), smoothing_m)[0]
             margins, H_O, H_W, H_J = batch.evaluate(i, values, True)
-            active = (margins < 0)[:, None]  # the hinge's inactive rows have no Jacobian
+            error, slope = clearance_error(margins, smoothing_m)
             blocks = (H_W, H_J) if fixed else (H_O, H_W, H_J)
             for k, block in enumerate(blocks):
-                H[k] = np.asfortranarray(np.where(active, block, 0.0))
-            return clearance_error(margins)
+                H[k] = np.asfortranarray(slope[:, None] * block)
+            return error
 
         keys = list(batch.steps[i]) if fixed else [key_o, *batch.steps[i]]
         return gtsam.CustomFactor(noise, keys, error)
@@ -283,10 +314,11 @@ def clearance_factor(
     key_j: int,
     clearance: ClearanceFn,
     std_m: float,
+    smoothing_m: float,
     T_world_object: np.ndarray | None = None,
 ) -> gtsam.CustomFactor:
     """The clearance factor of one step (:func:`clearance_factors` of ``[(key_w, key_j)]``)."""
-    return clearance_factors(key_o, [(key_w, key_j)], clearance, std_m, T_world_object)[0]
+    return clearance_factors(key_o, [(key_w, key_j)], clearance, std_m, smoothing_m, T_world_object)[0]
 
 
 def modeling_covariance(

@@ -128,7 +128,8 @@ def build_graph(
     steps = [(key_w(t), key_j(t)) for t in constrained]
     if steps:
         fixed = T_world_object if fixed_object else None
-        for f in clearance_factors(key_o(), steps, clearance, std_m, fixed):
+        smoothing_m = params.hinge_smoothing_mm * 1e-3
+        for f in clearance_factors(key_o(), steps, clearance, std_m, smoothing_m, fixed):
             graph.add(f)
     return graph
 

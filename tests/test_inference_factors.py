@@ -13,6 +13,8 @@ from assets.se3 import make_pose, se3_exp
 from assets.sphere_cover import hand_sphere_cover
 from inference.clearance import HandClearance
 from inference.factors import (
+    HINGE_CUTOFF,
+    clearance_error,
     clearance_factor,
     demonstration_error,
     demonstration_factors,
@@ -115,6 +117,10 @@ def test_block_diagonal_demonstration_factor_uses_builtins_with_the_same_error()
     assert math.isclose(chi2, expected @ np.linalg.solve(cov, expected), rel_tol=1e-9)
 
 
+SMOOTHING_M = 0.0005  # the hinge's smoothing length in these tests
+ACTIVE_M = HINGE_CUTOFF * SMOOTHING_M
+
+
 def _hand_in_a_scene():
     """The SAH's cover against a table (closed-form box) and a ball-shaped object (a grid field in the
     object frame), with a 50 mm self clearance so that self rows are violated too; a configuration with
@@ -123,7 +129,14 @@ def _hand_in_a_scene():
     table = BoxField(np.array([0.6, 0.4, 0.025]), make_pose(np.eye(3), [0, 0, -0.025]))
     ball = SphereField(0.04, np.array([0.0, 0.0, 0.05]))
     ball_grid = GridField.from_function(lambda p: ball.distance(p)[0], [-0.1] * 3, [0.1, 0.1, 0.2], 0.004)
-    clearance = HandClearance(cover, [table], ball_grid, self_clearance_m=0.05, self_pairs=cover.self_pairs())
+    clearance = HandClearance(
+        cover,
+        [table],
+        ball_grid,
+        self_clearance_m=0.05,
+        self_pairs=cover.self_pairs(),
+        active_margin_m=ACTIVE_M,
+    )
     rng = np.random.default_rng(9)
     O = gtsam.Pose3(se3_exp(np.r_[0.05 * rng.normal(size=3), 0.01 * rng.normal(size=3)]))
     R_down = np.diag([1.0, -1.0, -1.0])  # fingers (+z of the wrist) pointing down
@@ -141,7 +154,13 @@ def test_clearance_factor_jacobians_match_numerical_through_o_w_and_j(numerical_
     assert np.sum((env < 0) & (env < obj)) >= 3 and np.sum((obj < 0) & (obj < env)) >= 3
     assert np.sum(pairs < 0) >= 3 and np.sum(margins[n:] < 0) >= 3  # table, object, self rows all active
     factor = clearance_factor(
-        None if fixed else 0, 1, 2, clearance, 0.002, T_world_object=O.matrix() if fixed else None
+        None if fixed else 0,
+        1,
+        2,
+        clearance,
+        0.002,
+        SMOOTHING_M,
+        T_world_object=O.matrix() if fixed else None,
     )
     values = gtsam.Values()
     if not fixed:
@@ -149,7 +168,8 @@ def test_clearance_factor_jacobians_match_numerical_through_o_w_and_j(numerical_
     values.insert(1, W)
     values.insert(2, J)
     _check_factor(factor, values, numerical_jacobian)
-    np.testing.assert_allclose(factor.unwhitenedError(values), np.minimum(margins, 0.0), atol=1e-15)
+    expected = clearance_error(margins, SMOOTHING_M)[0]
+    np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-15)
 
 
 def _dense_margins(clearance, T_world_object, T_world_wrist, joints):
@@ -168,8 +188,8 @@ def _dense_margins(clearance, T_world_object, T_world_wrist, joints):
 
 def test_broad_phase_margins_are_exact_where_violated_and_lower_bounds_elsewhere():
     """Batched margins of many configurations near the table and the object against the dense reference:
-    equal wherever the reference is negative (or the broad phase evaluated the sphere), never above it,
-    and never negative where the reference is not."""
+    equal wherever the reference is below the active margin, never above it, and never below the active
+    margin where the reference is not."""
     clearance, O, W, J = _hand_in_a_scene()
     rng = np.random.default_rng(4)
     Ws = W.matrix() @ se3_exp(np.c_[0.3 * rng.normal(size=(12, 3)), 0.04 * rng.normal(size=(12, 3))])
@@ -180,9 +200,9 @@ def test_broad_phase_margins_are_exact_where_violated_and_lower_bounds_elsewhere
     for k in range(12):
         env, obj, pairs = _dense_margins(clearance, O.matrix(), Ws[k], Js[k])
         ref = np.r_[np.minimum(env, obj), pairs]
-        neg = ref < 0
+        neg = ref < ACTIVE_M
         np.testing.assert_allclose(got[k][neg], ref[neg], atol=1e-12)
-        assert np.all(got[k] <= ref + 1e-12) and np.all(got[k][~neg] >= 0)
+        assert np.all(got[k] <= ref + 1e-12) and np.all(got[k][~neg] >= ACTIVE_M)
         violated += neg.sum()
         bounded += np.sum(got[k] < ref - 1e-9)
     assert violated > 100 and bounded > 1000  # both phases are exercised
@@ -196,15 +216,39 @@ def test_broad_phase_margins_are_exact_where_violated_and_lower_bounds_elsewhere
 def test_clearance_factor_of_a_free_configuration_is_zero_and_refuses_a_bad_std():
     clearance, O, W, J = _hand_in_a_scene()
     far = gtsam.Pose3(make_pose(np.eye(3), [0.0, 0.0, 1.0]))
-    free = HandClearance(clearance.cover, clearance.environment, clearance.object_field)
-    factor = clearance_factor(None, 1, 2, free, 0.002, T_world_object=O.matrix())
+    free = HandClearance(
+        clearance.cover, clearance.environment, clearance.object_field, active_margin_m=ACTIVE_M
+    )
+    factor = clearance_factor(None, 1, 2, free, 0.002, SMOOTHING_M, T_world_object=O.matrix())
     values = gtsam.Values()
     values.insert(1, far)
     values.insert(2, J)
     assert factor.error(values) == 0.0
     assert np.all(factor.linearize(values).jacobian()[0] == 0.0)
     with pytest.raises(InputError, match="std must be > 0"):
-        clearance_factor(None, 1, 2, free, 0.0, T_world_object=O.matrix())
+        clearance_factor(None, 1, 2, free, 0.0, SMOOTHING_M, T_world_object=O.matrix())
+    with pytest.raises(InputError, match="smoothing must be > 0"):
+        clearance_factor(None, 1, 2, free, 0.002, np.nan, T_world_object=O.matrix())
+    with pytest.raises(InputError, match="below the hinge's cutoff"):
+        clearance_factor(None, 1, 2, free, 0.002, 2 * SMOOTHING_M, T_world_object=O.matrix())
+
+
+def test_smooth_hinge_limits_slope_and_cutoff():
+    """e(m) = -s softplus(-m/s): m deep in violation, -s ln 2 at the clearance, zero far from it; its slope
+    against central differences; the jump at the cutoff is below 5e-5 s."""
+    s = SMOOTHING_M
+    m = np.array([-0.02, -0.002, 0.0, 0.0004, 0.003])
+    e, slope = clearance_error(m, s)
+    assert e[0] == pytest.approx(-0.02, abs=1e-15) and e[1] == pytest.approx(
+        -0.002 - s * np.exp(-4), rel=1e-3
+    )
+    assert e[2] == pytest.approx(-s * np.log(2.0), rel=1e-15) and slope[2] == pytest.approx(0.5)
+    assert np.all(np.diff(e) > 0) and np.all((slope > 0) & (slope <= 1))
+    h = 1e-9
+    numeric = (clearance_error(m + h, s)[0] - clearance_error(m - h, s)[0]) / (2 * h)
+    np.testing.assert_allclose(slope, numeric, rtol=1e-6, atol=1e-9)
+    below, at, far = clearance_error(np.array([ACTIVE_M * (1 - 1e-12), ACTIVE_M, 1.0]), s)[0]
+    assert at == far == 0.0 and 0 < -below < 5e-5 * s
 
 
 def test_modeling_covariance_mapping_wrist_terms_and_floor(standin_map):

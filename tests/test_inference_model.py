@@ -118,7 +118,8 @@ def test_marginals_equal_a_dense_numerical_linearization_at_the_mean(
 ):
     n = 5
     traj = make_traj(n=n, coupled=coupled, seed=4)
-    model = solve(traj, fingertip_map=standin_map)
+    # converged far below the default 1e-5, so that the mean is the optimum to MEAN_ATOL
+    model = solve(traj, VariationParams(relative_error_tolerance=1e-12), fingertip_map=standin_map)
     params = model.params
     cov_f1 = factor_covariances(traj, params, standin_map)
     graph = build_graph(traj, params, cov_f1, traj.T_world_object_mean, None, fixed_object=True)
@@ -164,7 +165,7 @@ def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_mar
 ):
     n = 5
     traj = make_traj(n=n, coupled=True, seed=5)
-    model = solve(traj, fingertip_map=standin_map)
+    model = solve(traj, VariationParams(relative_error_tolerance=1e-12), fingertip_map=standin_map)
     graph, values = _solve_full(traj, model.params, standin_map)
     marginals = gtsam.Marginals(graph, values)
     # a dense joint computation: the full information matrix, inverted with numpy
@@ -219,6 +220,7 @@ class _Planes:
         self.offsets = np.asarray(offsets, dtype=float)
         self.joint_rows = list(joint_rows)  # (joint index, slope, wall)
         self.dim = len(self.normals) + len(self.joint_rows)
+        self.active_margin_m = np.inf  # every margin exact, with its Jacobian
 
     def __call__(self, T_world_object, T_world_wrist, joints, jacobians=False):
         p, R = T_world_wrist[..., :3, 3], T_world_wrist[..., :3, :3]
@@ -288,9 +290,10 @@ def test_joint_0_against_a_wall_gives_the_gaussian_update_or_nothing(make_traj, 
     """Joint 0 with a Gaussian prior whose mean lies inside a wall (margin = J_0 - w, w above the means):
     the active hinge is a linear Gaussian observation J_0 = w of std sigma_c on each step, so the solve gives
     the dense closed form of the joints' chain with those priors added; with the wall far below the means
-    every row is inactive and the marginals are the chain's own."""
+    every row is inactive and the marginals are the chain's own. (A hinge smoothing of 1e-9 makes the
+    smooth hinge the plain one here.)"""
     traj = make_traj(n=3, coupled=False, seed=11)
-    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19))
+    params = VariationParams(sigma_m_std_config=np.linspace(0.01, 0.05, 19), hinge_smoothing_mm=1e-6)
     w = traj.joints[:, 0].max() + wall if wall > 0 else wall
     model = solve(traj, params, clearance=_Planes(joint_rows=[(0, 1.0, w)]))
     assert model.converged
