@@ -8,8 +8,10 @@ asserted in tests.
 * inference: graph + Gauss-Newton + all conditional marginals of a synthetic T-step trajectory
   (:func:`inference.solve.solve`), and the marginals alone by ``gtsam.Marginals`` beside the dense
   reference (the information matrix at the solution, ``hessian`` with an explicit ordering, inverted by
-  numpy), with the largest relative difference of the two as a check; T = 100 again with linearized
-  constraint factors (an analytic height constraint, so the figure is the graph's and not pybullet's);
+  numpy), with the largest relative difference of the two as a check;
+* scene inference: per Table I row, the variation model in the row's scene (clearance factors on the SAH's
+  sphere cover and the scene's distance fields, LM, joint limits): solve time, iterations, convergence
+  (quick mode: the in-code ham approach in the ham scene);
 * samples per second of the mixture P(Y) (:class:`inference.sampler.MixtureSampler`, beta = 0.05);
 * collision: configurations (uniform in the ham scene's bounds) and edges (between consecutive P(Y) draws
   of the ham strategy) checked per second;
@@ -33,6 +35,7 @@ import os
 import platform
 import resource
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -43,6 +46,8 @@ from assets.errors import InputError
 from assets.q_layout import Q_DIM
 
 from .bench_fixtures import HAM_GRASP_Q, quick_model, strategy_model, synthetic_trajectory
+from .cache import prepare_trajectory
+from .paper import ROWS
 
 __all__ = [
     "BenchConfig",
@@ -155,11 +160,10 @@ def _dense_marginals(graph, values, n: int) -> np.ndarray:
 def bench_inference(
     sizes=(25, 50, 100, 200), repeats: int = 3, rng: np.random.Generator | None = None
 ) -> dict:
-    """Graph + solve + marginals per T, gtsam vs dense marginals, and T = 100 with constraint factors.
+    """Graph + solve + marginals per T, gtsam vs dense marginals (no scene).
 
     Returns:
-        ``{"rows": [{T, solve_ms, marginals_ms, dense_ms, dense_over_gtsam, max_rel_diff}], "constrained":
-        {T, solve_ms, iterations, constrained_steps}}``.
+        ``{"rows": [{T, solve_ms, marginals_ms, dense_ms, dense_over_gtsam, max_rel_diff}]}``.
     """
     from inference.graph import build_graph, factor_covariances, initial_values
     from inference.params import VariationParams
@@ -189,22 +193,44 @@ def bench_inference(
                 "max_rel_diff": rel,
             }
         )
-    n = 100 if 100 in sizes else max(sizes)
-    traj = synthetic_trajectory(n, rng)
-    z_grasp_m = float((traj.T_world_object_mean @ traj.T_object_wrist[-1])[2, 3])
+    return {"rows": rows}
 
-    def height(T_world_wrist: np.ndarray, joints: np.ndarray) -> float:
-        # wrist height above a plane 25 mm below the grasp: active (< 30 mm) on the last steps
-        return float(T_world_wrist[2, 3] - z_grasp_m + 0.025)
 
-    solve_c, model = _timed(lambda: solve(traj, params, constraint_fn=height), repeats)
-    constrained = {
-        "T": n,
-        "solve_ms": 1e3 * solve_c,
-        "iterations": int(model.iterations),
-        "constrained_steps": int(np.sum(model.constrained)),
-    }
-    return {"rows": rows, "constrained": constrained}
+def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_dir: Path) -> dict:
+    """Per row, the variation model in the row's scene (:func:`pbdgrasp.scene_model.learn_in_scene`): the
+    solve's wall time with the scene's distance fields built (their build time apart), its LM iterations,
+    convergence and constrained steps.
+
+    Args:
+        rows: scene names.
+        trajectory_of: ``row -> Trajectory``, e.g. the row's retargeted strategy.
+        cache_dir: the distance fields' cache is ``cache_dir / "fields"``.
+    """
+    from inference.params import VariationParams
+    from planning.scene import load_scene
+    from planning.scene_fields import scene_fields
+
+    from .scene_model import learn_in_scene
+
+    params = VariationParams()
+    out = {}
+    for row in rows:
+        traj = trajectory_of(row)
+        scene = load_scene(row)
+        fields_s, _ = _timed(lambda scene=scene: scene_fields(scene, cache_dir / "fields"), 1)
+        solve_s, model = _timed(
+            lambda traj=traj, scene=scene: learn_in_scene(traj, scene, params, cache_dir / "fields"), 1
+        )
+        out[row] = {
+            "T": int(model.num_steps),
+            "solve_s": solve_s,
+            "fields_s": fields_s,
+            "iterations": int(model.iterations),
+            "converged": bool(model.converged),
+            "constrained_steps": int(np.sum(model.constrained)),
+        }
+        log.info("bench scene inference %s: %s", row, out[row])
+    return out
 
 
 def bench_sampler(
@@ -386,6 +412,19 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
     say("inference")
     out["inference"] = bench_inference((25, 50) if q else (25, 50, 100, 200), 1 if q else 3, rngs[0])
     model = quick_model()
+    say("scene inference")
+    if q:  # the in-code top-down ham approach, in the ham scene
+        rows, trajectory_of = ("ham",), lambda _row: synthetic_trajectory(30, np.random.default_rng(0))
+    else:  # the rows' retargeted strategies
+
+        def trajectory_of(row: str):
+            from retarget.trajectory import Trajectory
+
+            path = prepare_trajectory(row, config.cache_dir, retarget_max_nfev=config.retarget_max_nfev)
+            return Trajectory.load(path)
+
+        rows = ROWS
+    out["scene_inference"] = bench_scene_inference(rows, trajectory_of, config.cache_dir)
     say("sampler")
     out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
     say("collision")

@@ -32,6 +32,7 @@ __all__ = [
     "Strategy",
     "float_kernels",
     "prepare_strategy",
+    "prepare_trajectory",
     "strategy_final_q",
 ]
 
@@ -78,12 +79,15 @@ RETARGET_SOURCES = (
 UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
 MODEL_SOURCES = (
     "inference",
+    "assets/sphere_cover.py",
+    "assets/distance_fields.py",
+    "planning/scene_fields.py",
     *_HAND_SOURCES,
     "planning/world.py",
     "planning/hand_urdf.py",
     "planning/scene.py",
     "planning/_pybullet.py",
-    "pbdgrasp/strategy.py",
+    "pbdgrasp/scene_model.py",
 )
 
 
@@ -164,13 +168,14 @@ class Strategy:
     mse_mm2: float
 
 
-def prepare_strategy(
+def prepare_trajectory(
     row: str,
     cache_dir: str | os.PathLike,
     progress: bool | None = False,
     retarget_max_nfev: int | None = None,
-) -> Strategy:
-    """Demonstration -> retargeting -> inference for one row, each step cached by the hash of its inputs.
+) -> Path:
+    """The retargeted trajectory of a row's strategy (its demonstration retargeted in the demonstrated
+    object's own scene), cached by the hash of its inputs.
 
     Args:
         row: a Table I row (scene name).
@@ -179,15 +184,13 @@ def prepare_strategy(
         retarget_max_nfev: Rosenbrock evaluations per retargeting step (None: the retargeting's default).
 
     Returns:
-        The :class:`Strategy` with the cached file paths.
+        The cached ``.traj.npz`` path.
     """
-    from inference import VariationParams
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig
-    from retarget.trajectory import Trajectory
 
-    from .strategy import learn_in_scene, retarget_in_scene
+    from .strategy import retarget_in_scene
 
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
@@ -212,6 +215,35 @@ def prepare_strategy(
         log.info("retargeting %s (cache miss) -> %s", scene.strategy, traj_path)
         traj, _ = retarget_in_scene(demo, demo_scene, config, progress=bool(progress))
         traj.save(traj_path)
+    return traj_path
+
+
+def prepare_strategy(
+    row: str,
+    cache_dir: str | os.PathLike,
+    progress: bool | None = False,
+    retarget_max_nfev: int | None = None,
+) -> Strategy:
+    """Demonstration -> retargeting -> inference for one row, each step cached by the hash of its inputs.
+
+    Args:
+        row: a Table I row (scene name).
+        cache_dir: the cache folder (created if missing).
+        progress: the retargeting's tqdm bar.
+        retarget_max_nfev: Rosenbrock evaluations per retargeting step (None: the retargeting's default).
+
+    Returns:
+        The :class:`Strategy` with the cached file paths.
+    """
+    from inference import VariationParams
+    from planning.scene import load_scene
+    from retarget.trajectory import Trajectory
+
+    from .scene_model import learn_in_scene
+
+    cache = Path(cache_dir)
+    traj_path = prepare_trajectory(row, cache, progress, retarget_max_nfev)
+    scene = load_scene(row)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
     model_key = _digest(
@@ -222,7 +254,7 @@ def prepare_strategy(
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
     if not model_path.is_file():
         log.info("inferring the variation model of %s (cache miss) -> %s", row, model_path)
-        model = learn_in_scene(traj, scene, params)
+        model = learn_in_scene(traj, scene, params, cache / "fields")
         model.save(model_path)
     mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))
     return Strategy(row, scene.strategy, traj_path, model_path, _sha256_file(model_path), mse_mm2)

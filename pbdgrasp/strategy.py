@@ -1,13 +1,12 @@
-"""A learned strategy from a demonstration, in scenes: the one place where retargeting and the variation
-model meet the pybullet world.
+"""Retargeting in a scene: the one place where section IV meets the pybullet world.
 
 * :func:`retarget_in_scene`: section IV with d6 checked in the demonstration's scene (the SAH against the
   object and the table), giving tau_r and Sigma_r(t) as a :class:`~retarget.trajectory.Trajectory`;
-* :func:`learn_in_scene`: sections V-VI in a planning scene: the scene's object pose and localization
-  covariance as P(O), and the signed distance of the hand to the scene's table and obstacles as the
-  constraint of the linearized constraint factors.
+* :func:`object_frame_is_free`, :func:`object_frame_penetration`: the world's queries with q in the object
+  frame, as the retargeting asks them.
 
-The CLI (``retarget``, ``infer``), the Table I runner and the bench all build strategies through here.
+The variation model in a scene (sections V-VI) is :func:`pbdgrasp.scene_model.learn_in_scene`. The CLI
+(``retarget``), the Table I runner and the bench retarget through here.
 """
 
 from __future__ import annotations
@@ -18,11 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from assets.q_layout import POSE
-from assets.sah import JOINT_LIMITS
 from assets.se3 import pose_from_q, q_from_pose
-from inference.model import VariationModel
-from inference.params import VariationParams
-from inference.solve import solve
 from planning.scene import Scene
 from planning.world import World
 from retarget.demonstration import Demonstration
@@ -32,10 +27,7 @@ from retarget.trajectory import Trajectory
 __all__ = [
     "object_frame_is_free",
     "object_frame_penetration",
-    "signed_distance_fn",
-    "signed_distance_gradient_fn",
     "retarget_in_scene",
-    "learn_in_scene",
 ]
 
 
@@ -76,47 +68,6 @@ def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
     return q_world
 
 
-def signed_distance_fn(
-    world: World, include_object: bool = False, object_max_distance_m: float = 0.05
-) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-    """phi(T_world_wrist (4, 4), joints (13,)) -> each hand link's signed distance [m] to the table and the
-    obstacles (:meth:`~planning.world.World.link_signed_distances`): one constraint per link; with
-    ``include_object``, followed by each link's signed distance to the object alone (2 per link), capped at
-    ``object_max_distance_m`` (the object's triangle mesh makes that query cost ~1 ms per 35 mm of range
-    on the chips can, against ~15 us for the table)."""
-
-    def signed_distance(T_world_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
-        q = np.concatenate([q_from_pose(T_world_wrist), joints])
-        phi = world.link_signed_distances(q)
-        if include_object:
-            obj = world.link_signed_distances(q, object_max_distance_m, bodies=(world.object_id,))
-            phi = np.concatenate([phi, obj])
-        return phi
-
-    return signed_distance
-
-
-def signed_distance_gradient_fn(
-    world: World, include_object: bool = False, object_max_distance_m: float = 0.05
-) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """``(T_world_wrist, joints) -> (phi, grad)``: :func:`signed_distance_fn`'s phi and its analytic gradient
-    (m, 19) in the tangent ``[omega, v, joints]`` of ``T_world_wrist @ Exp(xi)``
-    (:meth:`~planning.world.World.link_signed_distance_gradients`): one distance query where central
-    differences make 2 x 19 more (on the ham: 10-20 ms per step instead of ~0.5 s)."""
-
-    def phi_and_gradient(T_world_wrist: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q = np.concatenate([q_from_pose(T_world_wrist), joints])
-        phi, grad = world.link_signed_distance_gradients(q)
-        if include_object:
-            phi_o, grad_o = world.link_signed_distance_gradients(
-                q, object_max_distance_m, bodies=(world.object_id,)
-            )
-            phi, grad = np.concatenate([phi, phi_o]), np.vstack([grad, grad_o])
-        return phi, grad
-
-    return phi_and_gradient
-
-
 def retarget_in_scene(
     demo: Demonstration,
     scene: Scene | None,
@@ -147,33 +98,3 @@ def retarget_in_scene(
                   retarget_time_s=time.perf_counter() - start),
     )  # fmt: skip
     return traj, result
-
-
-def learn_in_scene(traj: Trajectory, scene: Scene, params: VariationParams | None = None) -> VariationModel:
-    """The variation model of ``traj`` with the scene's object prior, signed-distance constraints and the
-    SAH's joint limits.
-
-    Each hand link has two constraints: its distance to the table and the obstacles, held at least
-    ``params.clearance_mm`` away, and its distance to the grasped object, held at least
-    ``params.object_clearance_mm`` away (our addition: the paper constrains the environment; without the
-    object the smoothing pulls the last steps' fingers into it, chips' last mean 2 mm deep, and most draws of
-    the last marginal collide).
-    """
-    params = params or VariationParams()
-    with World(scene) as world:
-        n_links = 1 + len(world.link_names)
-        clearance_mm = np.r_[
-            np.full(n_links, params.clearance_mm), np.full(n_links, params.object_clearance_mm)
-        ]
-        # beyond the activation distance a component is never constrained: 5 mm more is enough
-        object_range_m = 1e-3 * (params.activation_distance_mm + 5.0)
-        return solve(
-            traj,
-            params,
-            T_world_object=scene.T_world_object,
-            cov_object=scene.cov_object,
-            constraint_fn=signed_distance_fn(world, True, object_range_m),
-            constraint_gradient_fn=signed_distance_gradient_fn(world, True, object_range_m),
-            constraint_clearance_mm=clearance_mm,
-            joint_limits=JOINT_LIMITS,
-        )

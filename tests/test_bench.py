@@ -23,14 +23,16 @@ def quick(tmp_path_factory):
 
 def test_quick_bench_json_has_every_section_and_key(quick):
     assert set(quick) >= {
-        "machine", "config", "inference", "sampler", "collision", "quality", "retargeting", "planning",
-        "memory",
+        "machine", "config", "inference", "scene_inference", "sampler", "collision", "quality", "retargeting",
+        "planning", "memory",
     }  # fmt: skip
     assert set(quick["machine"]) >= {"platform", "cpu_count", "cpu_model"}
     for row in quick["inference"]["rows"]:
         assert set(row) == {"T", "solve_ms", "marginals_ms", "dense_ms", "dense_over_gtsam", "max_rel_diff"}
         assert row["solve_ms"] > 0 and row["dense_ms"] > 0
-    assert set(quick["inference"]["constrained"]) == {"T", "solve_ms", "iterations", "constrained_steps"}
+    assert set(quick["scene_inference"]["ham"]) == {
+        "T", "solve_s", "fields_s", "iterations", "converged", "constrained_steps",
+    }  # fmt: skip
     assert quick["sampler"]["samples_per_s"] > 0 and quick["sampler"]["numpy_normals_19d_per_s"] > 0
     assert set(quick["collision"]) >= {"configs_per_s", "edges_per_s"}
     assert set(quick["quality"]) >= {"epsilon_us", "close_and_score_ms"}
@@ -53,7 +55,8 @@ def test_quick_bench_cross_checks(quick):
     """The figures carry their own oracles: the dense marginals agree and the ham grasp scores."""
     worst = max(row["max_rel_diff"] for row in quick["inference"]["rows"])
     assert worst < DENSE_REL_TOL
-    assert quick["inference"]["constrained"]["constrained_steps"] > 0
+    ham = quick["scene_inference"]["ham"]
+    assert ham["converged"] and ham["constrained_steps"] == ham["T"] == 30
     assert quick["quality"]["ham_grasp_quality"] >= HAM_GRASP_EPSILON_MIN
     assert 0.0 < quick["collision"]["free_fraction"] < 1.0
 

@@ -83,10 +83,18 @@ def format_table(r: dict) -> str:
             f"  {row['T']:>5} {row['solve_ms']:>10.1f} {row['marginals_ms']:>10.1f} {row['dense_ms']:>10.1f} "
             f"{row['dense_over_gtsam']:>12.2f} {row['max_rel_diff']:>13.1e}"
         )
-    c = r["inference"]["constrained"]
     lines += [
-        f"  T = {c['T']} with constraint factors on {c['constrained_steps']} steps: {c['solve_ms']:.1f} ms, "
-        f"{c['iterations']} relinearizations",
+        "",
+        "scene inference (clearance factors, LM, joint limits; the distance fields built apart)",
+        f"  {'row':<20} {'T':>4} {'solve s':>8} {'fields s':>9} {'LM its':>7} {'converged':>10}",
+    ]
+    for row, c in r["scene_inference"].items():
+        lines.append(
+            f"  {row:<20} {c['T']:>4} {c['solve_s']:>8.1f} {c['fields_s']:>9.1f} {c['iterations']:>7} "
+            f"{'yes' if c['converged'] else 'NO':>10}"
+        )
+    lines += [
+        "",
         f"sampler: {r['sampler']['samples_per_s']:.3g} samples/s from P(Y) (n = {r['sampler']['n']}; numpy "
         f"draws {r['sampler'].get('numpy_normals_19d_per_s', float('nan')):.3g} 19-D normals/s here)",
     ]

@@ -1,9 +1,9 @@
 """``pbdgrasp infer TRAJ [--scene S] [--params P.yaml] -o MODEL.model.npz``: the variation model (paper V-VI).
 
-Without ``--scene`` the object prior is the trajectory's and the only constraint factors are the SAH's
-joint limits. With it, the object prior is the scene's object pose and localization covariance, and the
-signed distance of the hand to the scene's table, obstacles and object (pybullet closest points) is also
-a constraint phi of the linearized constraint factors (see :mod:`inference.solve`).
+Without ``--scene`` the object prior is the trajectory's and the only constraints are the SAH's joint
+limits. With it, the object prior is the scene's object pose and localization covariance, and every step
+gets a clearance factor: the SAH's sphere cover against the distance fields of the scene's table,
+obstacles and object and against itself (:mod:`pbdgrasp.scene_model`, :mod:`inference.solve`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def run(args) -> int:
     traj = Trajectory.load(args.trajectory)
     params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
     if args.scene:
-        from pbdgrasp.strategy import learn_in_scene
+        from pbdgrasp.scene_model import learn_in_scene
         from planning.scene import load_scene
 
         model = learn_in_scene(traj, load_scene(args.scene), params)

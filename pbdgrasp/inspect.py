@@ -1,0 +1,160 @@
+"""Where a strategy fails in a scene, before planning: how many draws of each marginal are collision-free,
+and how many of the last step's close to a valid grasp.
+
+:func:`inspect_model` draws ``n`` configurations per step from P(X_t | O) with O ~ P(O) (the planner's
+draws, :meth:`planning.grasp_planner.GraspPlanner.draw_marginal`, joints clipped to the SAH's limits),
+checks each with the planner's collision checker (pybullet: every link against the table, the object, the
+obstacles and the hand itself; for the colliding ones, which of them it penetrates), and closes the hand
+at each of the last step's draws (GraspIt!'s autograsp and the L1 epsilon quality,
+:mod:`planning.autograsp`). The model is placed in the scene's object pose, as the planner places it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from assets.errors import InputError
+from inference.model import VariationModel
+from planning.grasp_planner import GraspPlanner
+from planning.scene import Scene
+
+__all__ = ["HIT_KINDS", "Inspection", "inspect_model", "plot_free_fraction"]
+
+HIT_KINDS = ("object", "environment", "self")
+
+
+@dataclass(frozen=True)
+class Inspection:
+    """What :func:`inspect_model` measured.
+
+    Attributes:
+        scene, object: the scene's name and the model's object.
+        draws: draws per step.
+        free_fraction: (T,) the fraction of collision-free draws per step.
+        hits: what the colliding draws penetrate, per step the fraction of draws (T,) each: ``object``
+            (the grasped object), ``environment`` (table and obstacles) and ``self`` (the hand itself); a
+            draw can count in more than one.
+        valid_fraction: the fraction of the last step's draws whose closed grasp has epsilon >= ``epsilon``.
+        best_epsilon: the best epsilon of those grasps.
+        epsilon: the validity threshold.
+        iterations, converged, solve_time_s: the model's solve (:class:`~inference.model.VariationModel`).
+        constrained_steps: how many steps had a clearance factor or a joint-limit site.
+    """
+
+    scene: str
+    object: str
+    draws: int
+    free_fraction: tuple[float, ...]
+    hits: dict[str, tuple[float, ...]]
+    valid_fraction: float
+    best_epsilon: float
+    epsilon: float
+    iterations: int
+    converged: bool
+    solve_time_s: float
+    constrained_steps: int
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+    def summary(self) -> str:
+        """A few lines for the terminal: the model, the worst step and the last step."""
+        free = np.asarray(self.free_fraction)
+        worst = int(np.argmin(free))
+        lines = [
+            f"model: {self.iterations} iterations, {'converged' if self.converged else 'NOT converged'}, "
+            f"solve {self.solve_time_s:.1f} s, {self.constrained_steps} constrained steps",
+            f"collision-free draws ({self.draws} per step): min {free.min():.0%} at step {worst}, "
+            f"mean {free.mean():.0%}, last step {free[-1]:.0%}",
+            f"at step {worst} the draws penetrate: "
+            + ", ".join(f"{name} {self.hits[name][worst]:.0%}" for name in HIT_KINDS),
+            f"last step: {self.valid_fraction:.0%} close to a valid grasp (epsilon >= {self.epsilon:g}), "
+            f"best epsilon {self.best_epsilon:.3f}",
+        ]
+        below = np.flatnonzero(free < 0.5)
+        if below.size:
+            lines.append(f"steps below 50 % free: {_ranges(below)}")
+        return "\n".join(lines)
+
+
+def inspect_model(
+    model: VariationModel, scene: Scene, draws: int, rng: np.random.Generator, epsilon: float = 0.05
+) -> Inspection:
+    """Measure ``model``'s marginals in ``scene`` (module docstring).
+
+    Raises:
+        InputError: ``draws`` below 1 or ``epsilon`` not in (0, 1).
+    """
+    if draws < 1:
+        raise InputError(f"draws: expected at least 1, found {draws}")
+    if not 0.0 < epsilon < 1.0:
+        raise InputError(f"epsilon: expected a quality in (0, 1), found {epsilon}")
+    with GraspPlanner(scene, [model]) as planner:
+        world = planner.checker.world
+        free, hits = [], {name: [] for name in HIT_KINDS}
+        for t in range(model.num_steps):
+            q = planner.draw_marginal(None, draws, rng, k=t)
+            is_free = np.array([planner.checker.is_free(x) for x in q])
+            counts = dict.fromkeys(HIT_KINDS, 0)
+            for x in q[~is_free]:
+                for kind in {_kind(c.other, scene) for c in world.hand_contacts(x) if c.distance_m < 0}:
+                    counts[kind] += 1
+            free.append(float(is_free.mean()))
+            for name in HIT_KINDS:
+                hits[name].append(counts[name] / draws)
+        last = planner.draw_marginal(1, draws, rng)
+        qualities = np.array([planner.quality(x)[0] for x in last])
+    return Inspection(
+        scene=scene.name,
+        object=model.object,
+        draws=int(draws),
+        free_fraction=tuple(free),
+        hits={name: tuple(v) for name, v in hits.items()},
+        valid_fraction=float(np.mean(qualities >= epsilon)),
+        best_epsilon=float(qualities.max()),
+        epsilon=float(epsilon),
+        iterations=int(model.iterations),
+        converged=bool(model.converged),
+        solve_time_s=float(model.solve_time_s),
+        constrained_steps=int(np.sum(model.constrained)),
+    )
+
+
+def _kind(other: str, scene: Scene) -> str:
+    """A contact's other body (:attr:`planning.world.Contact.other`) as one of :data:`HIT_KINDS`."""
+    if other.startswith("self:"):
+        return "self"
+    return "object" if other == scene.object.name else "environment"
+
+
+def plot_free_fraction(inspections: dict[str, Inspection], path: str | Path) -> Path:
+    """The collision-free fraction per time step, one curve per labelled inspection, as a PNG."""
+    from matplotlib.figure import Figure
+
+    from .figures import _save_figure
+
+    fig = Figure(figsize=(6.0, 3.2))
+    ax = fig.add_subplot()
+    for label, ins in inspections.items():
+        ax.plot(np.arange(len(ins.free_fraction)), ins.free_fraction, label=label)
+    ax.axhline(0.5, color="0.6", linestyle=":", linewidth=1)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel("time step t")
+    ax.set_ylabel("collision-free draws")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    return _save_figure(fig, Path(path))
+
+
+def _ranges(steps: np.ndarray) -> str:
+    """``[3, 4, 5, 9]`` -> ``'3-5, 9'``."""
+    out, start = [], int(steps[0])
+    for a, b in zip(steps, [*steps[1:], None], strict=True):
+        if b is None or b != a + 1:
+            out.append(f"{start}" if start == a else f"{start}-{a}")
+            start = None if b is None else int(b)
+    return ", ".join(out)

@@ -1,0 +1,68 @@
+"""The variation model in a scene (sections V-VI): the one place where the model meets a scene's geometry.
+
+:func:`learn_in_scene` solves a trajectory's model with the scene's object pose and localization covariance
+as P(O), the SAH's joint limits, and clearance factors on the SAH's sphere cover
+(:func:`assets.sphere_cover.hand_sphere_cover`) against the scene's distance fields
+(:func:`planning.scene_fields.scene_fields`): ``params.clearance_mm`` from the table and the obstacles,
+``params.object_clearance_mm`` from the grasped object (our addition: the paper constrains the
+environment; without the object the smoothing pulls the last steps' fingers into it) and
+``params.self_clearance_mm`` between the phalanges of different fingers. The CLI (``infer``, ``inspect``),
+the Table I runner and the bench build scene models through here.
+"""
+
+from __future__ import annotations
+
+import os
+
+from assets.sah import JOINT_LIMITS, rest_joints
+from assets.sphere_cover import hand_sphere_cover
+from inference.clearance import HandClearance
+from inference.factors import HINGE_CUTOFF
+from inference.model import VariationModel
+from inference.params import VariationParams
+from inference.solve import solve
+from planning.scene import Scene
+from planning.scene_fields import scene_fields
+from retarget.trajectory import Trajectory
+
+__all__ = ["scene_clearance", "learn_in_scene"]
+
+
+def scene_clearance(
+    scene: Scene, params: VariationParams | None = None, cache_dir: str | os.PathLike | None = None
+) -> HandClearance:
+    """The SAH's clearance margins in ``scene`` with the clearances of ``params``.
+
+    Args:
+        cache_dir: where mesh fields are cached (None: in memory only).
+    """
+    params = params or VariationParams()
+    fields = scene_fields(scene, cache_dir)
+    return HandClearance(
+        hand_sphere_cover("sah"),
+        fields.environment,
+        fields.object_field,
+        clearance_m=params.clearance_mm * 1e-3,
+        object_clearance_m=params.object_clearance_mm * 1e-3,
+        self_clearance_m=params.self_clearance_mm * 1e-3,
+        rest_joints=rest_joints(),
+        active_margin_m=HINGE_CUTOFF * params.hinge_smoothing_mm * 1e-3,
+    )
+
+
+def learn_in_scene(
+    traj: Trajectory,
+    scene: Scene,
+    params: VariationParams | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> VariationModel:
+    """The variation model of ``traj`` in ``scene`` (module docstring)."""
+    params = params or VariationParams()
+    return solve(
+        traj,
+        params,
+        T_world_object=scene.T_world_object,
+        cov_object=scene.cov_object,
+        clearance=scene_clearance(scene, params, cache_dir),
+        joint_limits=JOINT_LIMITS,
+    )

@@ -1,0 +1,81 @@
+"""``pbdgrasp inspect``: a model whose marginals are points gives the collision state and the grasp of its
+means, checked directly in pybullet; a model through the table collides in every draw, with the table."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from assets.se3 import q_from_pose
+from pbdgrasp.cli import main
+from pbdgrasp.inspect import inspect_model
+from planning.autograsp import HandCloser
+from planning.scene import load_scene
+from planning.world import World
+
+STEPS = 8
+POINT_COV = 1e-14  # [rad^2, m^2]: draws within 1e-7 of the means
+
+
+@pytest.fixture(scope="module")
+def point_model(ham_top_down_model):
+    """The top-down ham approach ending at the hand-placed grasp, its covariances shrunk to points."""
+    model = ham_top_down_model(STEPS)
+    return dataclasses.replace(
+        model,
+        cov=np.repeat(POINT_COV * np.eye(19)[None], STEPS, axis=0),
+        cov_object=POINT_COV * np.eye(6),
+    )
+
+
+@pytest.fixture(scope="module")
+def quiet_ham():
+    """The ham scene with its object localized to 1e-9 m and 1e-9 rad (the planner draws O ~ P(O))."""
+    scene = load_scene("ham")
+    return dataclasses.replace(
+        scene, object=dataclasses.replace(scene.object, position_std_mm=1e-6, rotation_std_deg=6e-8)
+    )
+
+
+def _mean_q(model, t):
+    return np.r_[q_from_pose(model.T_world_object_mean @ model.T_object_wrist_mean[t]), model.joints_mean[t]]
+
+
+def test_point_marginals_give_the_collision_state_and_grasp_of_the_means(point_model, quiet_ham):
+    scene = quiet_ham
+    result = inspect_model(point_model, scene, 6, np.random.default_rng(0))
+    with World(scene) as world:
+        expected = [float(world.is_free(_mean_q(point_model, t))) for t in range(STEPS)]
+        closed = HandCloser(world).close(_mean_q(point_model, STEPS - 1))
+    assert result.free_fraction == tuple(expected)
+    assert 0.0 < np.mean(expected) and expected[0] == 1.0  # the approach starts free
+    for t in range(STEPS):  # a colliding mean collides in every draw, with something named
+        hit = max(result.hits[kind][t] for kind in result.hits)
+        assert hit == pytest.approx(1.0 - expected[t])
+    assert closed.quality >= 0.05
+    assert result.valid_fraction == 1.0 and result.best_epsilon == pytest.approx(closed.quality, abs=2e-3)
+    assert result.converged and result.draws == 6 and len(result.free_fraction) == STEPS
+
+
+def test_a_model_through_the_table_collides_with_the_table_in_every_draw(point_model, quiet_ham):
+    T = point_model.T_object_wrist_mean.copy()
+    T[:, 2, 3] -= 0.3  # 30 cm down: through the table top
+    sunk = dataclasses.replace(point_model, T_object_wrist_mean=T)
+    result = inspect_model(sunk, quiet_ham, 4, np.random.default_rng(1))
+    assert result.free_fraction == (0.0,) * STEPS
+    assert result.hits["environment"] == (1.0,) * STEPS
+    assert "environment 100%" in result.summary()
+
+
+def test_cli_json_plot_and_a_bad_draw_count(point_model, tmp_path, capsys):
+    path = point_model.save(tmp_path / "ham.model.npz")
+    plot = tmp_path / "free.png"
+    argv = ["inspect", str(path), "--scene", "ham", "--draws", "3", "--json", "--plot", str(plot)]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["free_fraction"]) == STEPS and set(out["hits"]) == {"object", "environment", "self"}
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["inspect", str(path), "--scene", "ham", "--draws", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --draws")
