@@ -161,7 +161,12 @@ class VariationModel:
             params_dict = json.loads(str(d["params_json"]))
         except ValueError as exc:
             raise InputError(f"params_json: not JSON ({exc})", path) from None
-        params = VariationParams.from_dict(params_dict, path)
+        try:
+            params = VariationParams.from_dict(params_dict, path)
+        except InputError as exc:
+            if exc.reason.startswith("unknown parameters"):  # a model of another pbdgrasp version
+                raise InputError(f"{exc.reason}; learn the model again (pbdgrasp infer)", path) from None
+            raise
         source = None
         if any(k.startswith(_SOURCE_PREFIX) for k in d):
             source = Trajectory.from_arrays(d, path, prefix=_SOURCE_PREFIX)

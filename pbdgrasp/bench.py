@@ -196,7 +196,7 @@ def bench_inference(
     return {"rows": rows}
 
 
-def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_dir: Path) -> dict:
+def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_dir: Path | None) -> dict:
     """Per row, the variation model in the row's scene (:func:`pbdgrasp.scene_model.learn_in_scene`): the
     solve's wall time with the scene's distance fields built (their build time apart), its LM iterations,
     convergence and constrained steps.
@@ -204,7 +204,7 @@ def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_di
     Args:
         rows: scene names.
         trajectory_of: ``row -> Trajectory``, e.g. the row's retargeted strategy.
-        cache_dir: the distance fields' cache is ``cache_dir / "fields"``.
+        cache_dir: the distance fields' cache is ``cache_dir / "fields"`` (None: in memory only).
     """
     from inference.params import VariationParams
     from planning.scene import load_scene
@@ -213,13 +213,14 @@ def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_di
     from .scene_model import learn_in_scene
 
     params = VariationParams()
+    fields_dir = None if cache_dir is None else cache_dir / "fields"
     out = {}
     for row in rows:
         traj = trajectory_of(row)
         scene = load_scene(row)
-        fields_s, _ = _timed(lambda scene=scene: scene_fields(scene, cache_dir / "fields"), 1)
+        fields_s, _ = _timed(lambda scene=scene: scene_fields(scene, fields_dir), 1)
         solve_s, model = _timed(
-            lambda traj=traj, scene=scene: learn_in_scene(traj, scene, params, cache_dir / "fields"), 1
+            lambda traj=traj, scene=scene: learn_in_scene(traj, scene, params, fields_dir), 1
         )
         out[row] = {
             "T": int(model.num_steps),
@@ -424,7 +425,7 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
             return Trajectory.load(path)
 
         rows = ROWS
-    out["scene_inference"] = bench_scene_inference(rows, trajectory_of, config.cache_dir)
+    out["scene_inference"] = bench_scene_inference(rows, trajectory_of, None if q else config.cache_dir)
     say("sampler")
     out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
     say("collision")
