@@ -1,5 +1,5 @@
 """The clearance of the hand in a scene, smooth and with analytic Jacobians: the constraint of the variation
-model's clearance factors (:func:`inference.factors.clearance_factor`).
+model's clearance factors (:func:`inference.factors.clearance_factors`).
 
 A clearance function maps ``(T_world_object, T_world_wrist, joints)`` to ``m`` margins [m], each the
 distance of something on the hand to something it must keep away from, minus the required clearance:
@@ -15,7 +15,8 @@ cover (:mod:`assets.sphere_cover`) and signed distance fields (:mod:`assets.dist
   r_j - self_clearance``, in the wrist frame.
 
 Jacobians are with respect to GTSAM's right perturbations ``T Exp([omega, v])`` of O and W and the 13
-joints; only the rows with a negative margin get theirs (the hinge's other rows have none).
+joints; only the rows with a margin below ``active_margin_m`` get theirs (the smooth hinge is zero beyond
+its cutoff, so the other rows need none).
 """
 
 from __future__ import annotations

@@ -296,11 +296,11 @@ def clearance_factors(
             if H is None:
                 return clearance_error(batch.evaluate(i, values, False), smoothing_m)[0]
             margins, H_O, H_W, H_J = batch.evaluate(i, values, True)
-            error, slope = clearance_error(margins, smoothing_m)
+            e, slope = clearance_error(margins, smoothing_m)
             blocks = (H_W, H_J) if fixed else (H_O, H_W, H_J)
             for k, block in enumerate(blocks):
                 H[k] = np.asfortranarray(slope[:, None] * block)
-            return error
+            return e
 
         keys = list(batch.steps[i]) if fixed else [key_o, *batch.steps[i]]
         return gtsam.CustomFactor(noise, keys, error)

@@ -2,11 +2,11 @@
 P(X_t | O = mu_o) (paper sections V-VI).
 
 Constraints: a clearance function (:mod:`inference.clearance`) gives the margins of the hand at
-``(mu_o, W_t, J_t)``; every step gets a clearance factor (:func:`inference.factors.clearance_factor`, a
-hinge with std ``constraint_std_mm``; its rows act only where a margin is negative). The graph is solved
-by GTSAM's Levenberg-Marquardt, which relinearizes every factor at each iteration, until the relative
-decrease of the error is below ``relative_error_tolerance`` (GTSAM's ``checkConvergence``) or
-``max_iterations`` iterations. The joint limits then go to their expectation-propagation fixed point
+``(mu_o, W_t, J_t)``; every step gets a clearance factor (:func:`inference.factors.clearance_factors`, a
+smooth hinge with std ``constraint_std_mm``; its rows act only where a margin is near or below zero). The
+graph is solved by GTSAM's Levenberg-Marquardt, which relinearizes every factor at each iteration, until
+the relative decrease of the error is below ``relative_error_tolerance`` (GTSAM's ``checkConvergence``)
+or ``max_iterations`` iterations. The joint limits then go to their expectation-propagation fixed point
 (:mod:`inference.joint_limits`), each update followed by a warm-started solve, and the marginals are
 taken at the converged point. What each choice changed when measured is in docs/method.md.
 """
