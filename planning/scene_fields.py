@@ -76,9 +76,13 @@ def mesh_field(
     key = hashlib.sha256(
         f"field v{FIELD_VERSION} {digest} {scale!r} {CELL_M!r} {PADDING_M!r}".encode()
     ).hexdigest()
-    if key in _MEMORY:
-        return _MEMORY[key]
     cached = None if cache_dir is None else Path(cache_dir) / f"{path.stem}-{key[:16]}.field.npz"
+    if key in _MEMORY:
+        field = _MEMORY[key]
+        if cached is not None and not cached.is_file():  # built in memory earlier, without this cache
+            cached.parent.mkdir(parents=True, exist_ok=True)
+            field.save(cached)
+        return field
     if cached is not None and cached.is_file():
         field = GridField.load(cached)
     else:
