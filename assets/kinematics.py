@@ -295,6 +295,7 @@ def collision_radius(path: str | Path, link: str) -> float:
     raise InputError(f"no link {link!r}", path)
 
 
+@lru_cache(maxsize=8)
 def load_hand_model(path: str) -> HandModel:
     """:meth:`HandModel.from_urdf`, cached by path (the models are immutable)."""
     return HandModel.from_urdf(path)

@@ -34,6 +34,7 @@ __all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_
 
 _LM_ITERATIONS = 12
 _GRID = (3, 3, 2)  # extra LM starts per clipped target: abduction x proximal x middle values in the limits
+_THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,13 @@ def _T_wrist_knuckle0(g: FingerGeometry, thumb_base: np.ndarray) -> np.ndarray:
     return g.T_wrist_module_origin @ T_rot @ g.T_parent_knuckle0
 
 
+def _knuckle0(finger: str, thumb_base: float) -> np.ndarray:
+    """(4, 4) a finger's knuckle frame at zero abduction in the wrist frame (the thumb at ``thumb_base``)."""
+    if finger != "thumb":
+        return finger_geometry(finger).T_parent_knuckle0
+    return _T_wrist_knuckle0(finger_geometry(finger), np.array([thumb_base]))[0]
+
+
 def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tip in the knuckle frame at zero abduction and its Jacobian.
 
@@ -115,7 +123,12 @@ def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.nd
     Returns:
         p (N, 3) [m] and J (N, 3, 3) = dp / dv.
     """
-    L1, L2, L3 = g.lengths_m
+    return _tip_local(g.lengths_m, v)
+
+
+def _tip_local(lengths_m: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`finger_fk_local` with the lengths (3,) of one finger or (N, 3), one finger per row."""
+    L1, L2, L3 = lengths_m[..., 0], lengths_m[..., 1], lengths_m[..., 2]
     a, t1, t2 = v[:, 0], v[:, 1], v[:, 2]
     s1, c1 = np.sin(t1), np.cos(t1)
     s12, c12 = np.sin(t1 + t2), np.cos(t1 + t2)
@@ -125,25 +138,64 @@ def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.nd
     dX2 = L2 * c12 + 2 * L3 * c122
     dZ2 = -L2 * s12 - 2 * L3 * s122
     sa, ca = np.sin(a), np.cos(a)
-    p = np.stack([X, Z * sa, Z * ca], axis=-1)
-    J = np.empty(v.shape[:1] + (3, 3))
-    J[:, 0] = np.stack([np.zeros_like(a), Z, dX2], axis=-1)
-    J[:, 1] = np.stack([Z * ca, -X * sa, dZ2 * sa], axis=-1)
-    J[:, 2] = np.stack([-Z * sa, -X * ca, dZ2 * ca], axis=-1)
+    n = v.shape[0]
+    p = np.empty((n, 3))
+    p[:, 0], p[:, 1], p[:, 2] = X, Z * sa, Z * ca
+    J = np.empty((n, 3, 3))
+    J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = 0.0, Z, dX2
+    J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = Z * ca, -X * sa, dZ2 * sa
+    J[:, 2, 0], J[:, 2, 1], J[:, 2, 2] = -Z * sa, -X * ca, dZ2 * ca
     return p, J
 
 
-def _closed_form(g: FingerGeometry, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Clipped closed-form solution (N, 3) and a mask of the rows where something was clipped."""
-    L1, L2, L3 = g.lengths_m
+@dataclass(frozen=True)
+class _Rows:
+    """Per-row finger geometry for a batch that mixes fingers: lengths (N, 3), limits lo, hi (N, 3),
+    reach r_min, r_max (N,) and the start grid (N, S, 3) of :func:`_nearest_reachable`."""
+
+    lengths_m: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    r_min: np.ndarray
+    r_max: np.ndarray
+    grid: np.ndarray
+
+    def take(self, rows: np.ndarray) -> _Rows:
+        return _Rows(*(a[rows] for a in (self.lengths_m, self.lo, self.hi, self.r_min, self.r_max, self.grid)))
+
+
+def _start_grid(g: FingerGeometry) -> np.ndarray:
+    """(S, 3) extra LM starts: abduction x proximal x middle values in the limits (:data:`_GRID`)."""
     lo, hi = g.limits[:, 0], g.limits[:, 1]
-    r_min, r_max = g.reach_m
+    axes = [np.linspace(lo[i], hi[i], m) for i, m in enumerate(_GRID)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+@lru_cache(maxsize=8)
+def _rows_of(fingers: tuple[str, ...]) -> _Rows:
+    """The :class:`_Rows` of one row per finger name (cached; the SAH's four fingers in one batch)."""
+    gs = [finger_geometry(f) for f in fingers]
+    return _Rows(
+        np.stack([g.lengths_m for g in gs]),
+        np.stack([g.limits[:, 0] for g in gs]),
+        np.stack([g.limits[:, 1] for g in gs]),
+        np.array([g.reach_m[0] for g in gs]),
+        np.array([g.reach_m[1] for g in gs]),
+        np.stack([_start_grid(g) for g in gs]),
+    )
+
+
+def _closed_form(rows: _Rows, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Clipped closed-form solution (N, 3) and a mask of the rows where something was clipped."""
+    L = rows.lengths_m
+    L1, L2, L3 = L[:, 0], L[:, 1], L[:, 2]
     r = np.linalg.norm(p, axis=-1)
-    r_c = np.clip(r, r_min, r_max)
+    r_c = np.clip(r, rows.r_min, rows.r_max)
     moved = np.abs(r_c - r) > 1e-12
     safe = np.where(r > 1e-12, r, 1.0)
     p = np.where(moved[:, None], p * (r_c / safe)[:, None], p)
-    p = np.where((r <= 1e-12)[:, None], np.array([0.0, 0.0, r_min]), p)
+    on_knuckle = np.stack([np.zeros_like(r), np.zeros_like(r), rows.r_min], axis=-1)
+    p = np.where((r <= 1e-12)[:, None], on_knuckle, p)
     # abduction: the branch with Z > 0 or Z < 0 whose angle is smaller
     rho = np.hypot(p[:, 1], p[:, 2])
     a_pos = np.arctan2(p[:, 1], p[:, 2])
@@ -163,29 +215,33 @@ def _closed_form(g: FingerGeometry, p: np.ndarray) -> tuple[np.ndarray, np.ndarr
     t1 = np.arctan2(X, Z) - phi
     t1 = (t1 + np.pi) % (2 * np.pi) - np.pi
     v = np.stack([a, t1, t2], axis=-1)
-    v_c = np.clip(v, lo, hi)
+    v_c = np.clip(v, rows.lo, rows.hi)
     clipped = moved | np.any(np.abs(v_c - v) > 1e-12, axis=-1)
     return v_c, clipped
 
 
-def _refine(g: FingerGeometry, v: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _refine(
+    lengths_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, v: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Projected Levenberg-Marquardt towards ``target`` (N, 3) within the limits, from ``v`` (N, 3).
+
+    ``lengths_m``, ``lo`` and ``hi`` are (N, 3), one finger per row.
 
     Returns:
         the joint values (N, 3) and the squared distances to the targets (N,) [m^2].
     """
-    lo, hi = g.limits[:, 0], g.limits[:, 1]
     lam = np.full(v.shape[0], 1e-4)
-    p, J = finger_fk_local(g, v)
+    p, J = _tip_local(lengths_m, v)
     e = p - target
     cost = np.einsum("ni,ni->n", e, e)
+    eye = np.eye(3)
     for _ in range(_LM_ITERATIONS):
         JtJ = np.einsum("nki,nkj->nij", J, J)
         g_ = np.einsum("nki,nk->ni", J, e)
-        H = JtJ + lam[:, None, None] * np.eye(3)
+        H = JtJ + lam[:, None, None] * eye
         step = -np.linalg.solve(H, g_[..., None])[..., 0]
         v_new = np.clip(v + step, lo, hi)
-        p_new, J_new = finger_fk_local(g, v_new)
+        p_new, J_new = _tip_local(lengths_m, v_new)
         e_new = p_new - target
         cost_new = np.einsum("ni,ni->n", e_new, e_new)
         ok = cost_new < cost
@@ -197,17 +253,22 @@ def _refine(g: FingerGeometry, v: np.ndarray, target: np.ndarray) -> tuple[np.nd
     return v, cost
 
 
-def _nearest_reachable(g: FingerGeometry, v0: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Multi-start :func:`_refine`: from ``v0`` (N, 3) and a grid of joint-limit corners; the best wins."""
-    lo, hi = g.limits[:, 0], g.limits[:, 1]
-    grid = np.stack(
-        np.meshgrid(*[np.linspace(lo[i], hi[i], m) for i, m in enumerate(_GRID)], indexing="ij"), -1
-    ).reshape(-1, 3)
-    starts = np.concatenate([v0[:, None], np.broadcast_to(grid, (len(v0),) + grid.shape)], axis=1)
-    s = starts.shape[1]
-    v, cost = _refine(g, starts.reshape(-1, 3), np.repeat(target, s, axis=0))
-    best = np.argmin(cost.reshape(-1, s), axis=1)
-    return v.reshape(-1, s, 3)[np.arange(len(v0)), best]
+def _nearest_reachable(rows: _Rows, v0: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Multi-start :func:`_refine`: from ``v0`` (N, 3) and each row's grid of joint values; the best wins."""
+    n, s = len(v0), rows.grid.shape[1] + 1
+    starts = np.concatenate([v0[:, None], rows.grid], axis=1).reshape(-1, 3)
+    rep = (lambda a: np.repeat(a, s, axis=0))  # noqa: E731
+    v, cost = _refine(rep(rows.lengths_m), rep(rows.lo), rep(rows.hi), starts, rep(target))
+    best = np.argmin(cost.reshape(n, s), axis=1)
+    return v.reshape(n, s, 3)[np.arange(n), best]
+
+
+def _solve_rows(rows: _Rows, p_local: np.ndarray) -> np.ndarray:
+    """Closed form, then the multi-start refinement of the clipped rows: (N, 3) targets -> (N, 3) joints."""
+    v, clipped = _closed_form(rows, p_local)
+    if np.any(clipped):
+        v[clipped] = _nearest_reachable(rows.take(clipped), v[clipped], p_local[clipped])
+    return v
 
 
 def finger_ik(finger: str, p_wrist: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray:
@@ -250,9 +311,8 @@ def finger_ik(finger: str, p_wrist: np.ndarray, seed: np.ndarray | None = None) 
         base = np.zeros(n)
     T = _T_wrist_knuckle0(g, base)
     p_local = np.einsum("nji,nj->ni", T[..., :3, :3], p - T[..., :3, 3])
-    v, clipped = _closed_form(g, p_local)
-    if np.any(clipped):
-        v[clipped] = _nearest_reachable(g, v[clipped], p_local[clipped])
+    rows = _rows_of((finger,)).take(np.zeros(n, dtype=int))
+    v = _solve_rows(rows, p_local)
     return np.concatenate([base[:, None], v], axis=-1) if finger == "thumb" else v
 
 
@@ -270,8 +330,14 @@ def hand_ik(p_wrist_tips: np.ndarray, seed_joints: np.ndarray) -> np.ndarray:
     seed = np.asarray(seed_joints, dtype=float)
     if p.shape != (4, 3) or seed.shape != (13,):
         raise InputError(f"hand_ik: expected (4, 3) targets and a (13,) seed, found {p.shape}, {seed.shape}")
+    if not np.all(np.isfinite(p)):
+        raise InputError("hand_ik: the targets have non-finite values")
     out = seed.copy()
+    thumb_base = np.clip(seed[_THUMB_BASE], *sah.JOINT_LIMITS[_THUMB_BASE])
+    T = np.stack([_knuckle0(f, thumb_base) for f in sah.FINGERS])
+    p_local = np.einsum("nji,nj->ni", T[..., :3, :3], p - T[..., :3, 3])
+    v = _solve_rows(_rows_of(sah.FINGERS), p_local)
+    out[_THUMB_BASE] = thumb_base
     for i, f in enumerate(sah.FINGERS):
-        idx = list(sah.FINGER_JOINTS[f])
-        out[idx] = finger_ik(f, p[i], seed[idx])[0]
+        out[list(sah.FINGER_JOINTS[f])[-3:]] = v[i]
     return out
