@@ -13,6 +13,7 @@ GTSAM's Pose3 and as the 19x19 configuration covariances.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from types import MappingProxyType
 
 import numpy as np
@@ -80,6 +81,7 @@ Parent-child pairs are excluded by pybullet itself; the knuckle links carry no c
 _MID = np.array([JOINT_NAMES.index(f"{f}_mid") for f in FINGERS])
 
 
+@lru_cache(maxsize=1)
 def model() -> HandModel:
     """The parsed SAH URDF (cached)."""
     return load_hand_model(str(assets.hand_urdf("sah")))
@@ -117,7 +119,7 @@ def fk(joints: np.ndarray) -> dict[str, np.ndarray]:
 
 def fingertip_positions(joints: np.ndarray) -> np.ndarray:
     """Fingertip positions in the wrist frame, (..., 13) -> (..., 4, 3) [m], :data:`FINGERS` order."""
-    poses = fk(joints)
+    poses = model().fk(joints, TIP_LINKS)
     return np.stack([poses[t][..., :3, 3] for t in TIP_LINKS], axis=-2)
 
 

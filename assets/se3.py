@@ -63,17 +63,94 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def so3_exp(omega: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from rotation vectors ``omega`` (..., 3) [rad]."""
+    """Rotation matrices (..., 3, 3) from rotation vectors ``omega`` (..., 3) [rad] (scipy's
+    ``Rotation.from_rotvec``; one vector in plain floats with scipy's arithmetic, bit for bit)."""
     omega = np.asarray(omega, dtype=float)
+    if omega.shape == (3,):
+        return _so3_exp_one(*omega.tolist())
     flat = omega.reshape(-1, 3)
     return Rotation.from_rotvec(flat).as_matrix().reshape(omega.shape[:-1] + (3, 3))
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) [rad], angle in [0, pi], from rotation matrices (..., 3, 3)."""
+    """Rotation vectors (..., 3) [rad], angle in [0, pi], from rotation matrices (..., 3, 3).
+
+    Through the unit quaternion by Shepperd's method (the largest of w, x, y, z first, as scipy's
+    ``Rotation.from_matrix``), without scipy's per-call checks: the wrist conversions are a hot path.
+    """
     R = np.asarray(R, dtype=float)
-    flat = R.reshape(-1, 3, 3)
-    return Rotation.from_matrix(flat).as_rotvec().reshape(R.shape[:-2] + (3,))
+    if R.shape == (3, 3):
+        return _so3_log_one(R.tolist())
+    m = R.reshape(-1, 3, 3)
+    d = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=-1)
+    tr = d.sum(axis=-1)
+    k = np.argmax(np.concatenate([d, tr[:, None]], axis=-1), axis=-1)  # 0-2: x, y or z largest; 3: w
+    q = np.empty((len(m), 4))  # x, y, z, w
+    q[:, 0] = m[:, 2, 1] - m[:, 1, 2]
+    q[:, 1] = m[:, 0, 2] - m[:, 2, 0]
+    q[:, 2] = m[:, 1, 0] - m[:, 0, 1]
+    q[:, 3] = 1.0 + tr
+    for i in range(3):  # rows where x, y or z is the largest component
+        rows = k == i
+        if not np.any(rows):
+            continue
+        j, l = (i + 1) % 3, (i + 2) % 3
+        mi = m[rows]
+        qi = np.empty((len(mi), 4))
+        qi[:, i] = 1.0 - tr[rows] + 2.0 * mi[:, i, i]
+        qi[:, j] = mi[:, j, i] + mi[:, i, j]
+        qi[:, l] = mi[:, l, i] + mi[:, i, l]
+        qi[:, 3] = mi[:, l, j] - mi[:, j, l]
+        q[rows] = qi
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[:, 3:] < 0.0, -q, q)
+    s = np.linalg.norm(q[:, :3], axis=-1)
+    angle = 2.0 * np.arctan2(s, q[:, 3])
+    scale = np.where(s > _SMALL, angle / np.where(s > _SMALL, s, 1.0), 2.0 / q[:, 3])
+    out = q[:, :3] * scale[:, None]
+    return out.reshape(R.shape[:-2] + (3,))
+
+
+def _so3_exp_one(x: float, y: float, z: float) -> np.ndarray:
+    """:func:`so3_exp` of one vector: scipy's quaternion (its series below 1e-3 rad), then its matrix."""
+    a = math.sqrt(x * x + y * y + z * z)
+    if a <= 1e-3:
+        a2 = a * a
+        s = 0.5 - a2 / 48 + a2 * a2 / 3840
+    else:
+        s = math.sin(a / 2) / a
+    x, y, z, w = s * x, s * y, s * z, math.cos(a / 2)
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    return np.array(
+        [
+            [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw)],
+            [2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw)],
+            [2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2],
+        ]
+    )
+
+
+def _so3_log_one(m: list) -> np.ndarray:
+    """:func:`so3_log` of one matrix (nested lists) in plain floats, the same arithmetic."""
+    tr = m[0][0] + m[1][1] + m[2][2]
+    diag = (m[0][0], m[1][1], m[2][2], tr)
+    k = diag.index(max(diag))
+    if k == 3:
+        q = [m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1], 1.0 + tr]
+    else:
+        j, l = (k + 1) % 3, (k + 2) % 3
+        q = [0.0] * 4
+        q[k] = 1.0 - tr + 2.0 * m[k][k]
+        q[j] = m[j][k] + m[k][j]
+        q[l] = m[l][k] + m[k][l]
+        q[3] = m[l][j] - m[j][l]
+    n = math.sqrt(sum(x * x for x in q))
+    sign = -1.0 if q[3] < 0.0 else 1.0
+    x, y, z, w = (sign * v / n for v in q)
+    s = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 * math.atan2(s, w) / s if s > _SMALL else 2.0 / w
+    return np.array([x * scale, y * scale, z * scale])
 
 
 def _coefficients(theta: np.ndarray):

@@ -11,9 +11,11 @@ so the distance ``r = |p|`` to the knuckle depends on the middle angle t2 alone:
 range. The solver is closed-form: abduction from the direction of p in the y-z plane, t2 from r, t1
 from the angle of (X, Z). Robustness as the paper's footnote: a target farther (or nearer) than the
 finger can reach is moved along the ray from the knuckle onto the reachable distance, and angles
-outside their limits are cut off; when anything was cut, projected Levenberg-Marquardt, started from the
-cut solution and from a small grid of joint values, moves the tip to the reachable point nearest the
-original target (the workspace is not convex; the grid makes the global nearest point likely).
+outside their limits are cut off; when anything was cut, the tip goes to the reachable point nearest the
+original target. That search is exact in abduction and proximal flexion for a given middle angle (with
+``theta = t1 + phi(t2)`` the tip is ``r(t2) (sin theta, cos theta sin a, cos theta cos a)``, and the best
+``(a, theta)`` in the limits is among a few closed-form candidates) and a zoomed grid over the middle
+angle, so it finds the global nearest point of the non-convex workspace to ~0.01 deg in t2.
 
 The thumb's base rotation (opposition) is not solved: it is taken from the seed (default: the rest
 pose's 90 deg) and IK solves abduction, proximal and middle flexion in the knuckle frame it gives.
@@ -30,10 +32,13 @@ from assets import sah
 from assets.errors import InputError
 from assets.se3 import skew
 
-__all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_fk_local"]
+__all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_fk_local", "fingertips"]
 
-_LM_ITERATIONS = 12
-_GRID = (3, 3, 2)  # extra LM starts per clipped target: abduction x proximal x middle values in the limits
+_GRID_T2 = 64  # middle-joint values of the nearest-point search over the joint range
+_ZOOM_POINTS = 33  # values per zoom, over two grid cells about the best one so far
+_ZOOMS = 2  # zooms: the middle angle to (range / 63) / 16^2, about 0.006 deg
+_UNIT_GRID = np.linspace(0.0, 1.0, _GRID_T2)
+_UNIT_ZOOM = np.linspace(-1.0, 1.0, _ZOOM_POINTS)
 _THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
 
 
@@ -106,11 +111,15 @@ def _T_wrist_knuckle0(g: FingerGeometry, thumb_base: np.ndarray) -> np.ndarray:
     return g.T_wrist_module_origin @ T_rot @ g.T_parent_knuckle0
 
 
+@lru_cache(maxsize=1024)
 def _knuckle0(finger: str, thumb_base: float) -> np.ndarray:
-    """(4, 4) a finger's knuckle frame at zero abduction in the wrist frame (the thumb at ``thumb_base``)."""
+    """(4, 4) a finger's knuckle frame at zero abduction in the wrist frame (the thumb at ``thumb_base``);
+    cached: a retargeting step moves the thumb's base rarely."""
     if finger != "thumb":
         return finger_geometry(finger).T_parent_knuckle0
-    return _T_wrist_knuckle0(finger_geometry(finger), np.array([thumb_base]))[0]
+    T = _T_wrist_knuckle0(finger_geometry(finger), np.array([thumb_base]))[0]
+    T.setflags(write=False)
+    return T
 
 
 def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,24 +160,16 @@ def _tip_local(lengths_m: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.nda
 @dataclass(frozen=True)
 class _Rows:
     """Per-row finger geometry for a batch that mixes fingers: lengths (N, 3), limits lo, hi (N, 3),
-    reach r_min, r_max (N,) and the start grid (N, S, 3) of :func:`_nearest_reachable`."""
+    and reach r_min, r_max (N,)."""
 
     lengths_m: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
     r_min: np.ndarray
     r_max: np.ndarray
-    grid: np.ndarray
 
     def take(self, rows: np.ndarray) -> _Rows:
-        return _Rows(*(a[rows] for a in (self.lengths_m, self.lo, self.hi, self.r_min, self.r_max, self.grid)))
-
-
-def _start_grid(g: FingerGeometry) -> np.ndarray:
-    """(S, 3) extra LM starts: abduction x proximal x middle values in the limits (:data:`_GRID`)."""
-    lo, hi = g.limits[:, 0], g.limits[:, 1]
-    axes = [np.linspace(lo[i], hi[i], m) for i, m in enumerate(_GRID)]
-    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        return _Rows(*(a[rows] for a in (self.lengths_m, self.lo, self.hi, self.r_min, self.r_max)))
 
 
 @lru_cache(maxsize=8)
@@ -181,7 +182,6 @@ def _rows_of(fingers: tuple[str, ...]) -> _Rows:
         np.stack([g.limits[:, 1] for g in gs]),
         np.array([g.reach_m[0] for g in gs]),
         np.array([g.reach_m[1] for g in gs]),
-        np.stack([_start_grid(g) for g in gs]),
     )
 
 
@@ -220,54 +220,94 @@ def _closed_form(rows: _Rows, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return v_c, clipped
 
 
-def _refine(
-    lengths_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, v: np.ndarray, target: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Projected Levenberg-Marquardt towards ``target`` (N, 3) within the limits, from ``v`` (N, 3).
+def _finger_plane(lengths_m: np.ndarray, t2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Knuckle-to-tip distance r(t2) and the angle phi(t2) of the tip from the proximal link, (N, M)."""
+    L1, L2, L3 = (lengths_m[:, k, None] for k in range(3))
+    u = L1 + L2 * np.cos(t2) + L3 * np.cos(2 * t2)
+    w = L2 * np.sin(t2) + L3 * np.sin(2 * t2)
+    return np.hypot(u, w), np.arctan2(w, u)
 
-    ``lengths_m``, ``lo`` and ``hi`` are (N, 3), one finger per row.
 
-    Returns:
-        the joint values (N, 3) and the squared distances to the targets (N,) [m^2].
+@dataclass(frozen=True)
+class _Target:
+    """What :func:`_best_at` needs of the targets (N, 3): the abduction candidates ``a`` (N, 4), the
+    amplitude ``c = rho cos(a - a*)`` (N, 4) of the cos theta term, the sinusoid's peak value ``R`` and
+    angle ``beta`` (N, 4), ``q_x`` and ``|q|^2`` (N,)."""
+
+    a: np.ndarray
+    c: np.ndarray
+    R: np.ndarray
+    beta: np.ndarray
+    qx: np.ndarray
+    q2: np.ndarray
+
+    @classmethod
+    def of(cls, rows: _Rows, q: np.ndarray) -> _Target:
+        lo, hi = rows.lo[:, :1], rows.hi[:, :1]
+        qx, rho, a_star = q[:, 0], np.hypot(q[:, 1], q[:, 2]), np.arctan2(q[:, 1], q[:, 2])
+        a = np.stack([lo[:, 0], hi[:, 0], a_star, a_star + np.pi], axis=-1)  # the ends, a*, a* + pi
+        a = (a - lo) % (2 * np.pi) + lo
+        a = np.where(a <= hi, a, lo)  # a* or a* + pi out of range: an end instead
+        c = rho[:, None] * np.cos(a - a_star[:, None])
+        qxc = np.broadcast_to(qx[:, None], c.shape)
+        return cls(a, c, np.hypot(qxc, c), np.arctan2(qxc, c), qx, (q * q).sum(axis=1))
+
+
+def _best_at(rows: _Rows, q: _Target, t2: np.ndarray, angles: bool) -> tuple[np.ndarray, ...]:
+    """The nearest tip to the targets for each fixed middle angle ``t2`` (N, M), exactly.
+
+    With theta = t1 + phi(t2) the tip is ``r(t2) (sin theta, cos theta sin a, cos theta cos a)``, so
+    ``|tip - q|^2 = |q|^2 + r^2 - 2 r f`` with ``f = q_x sin theta + rho cos(a - a*) cos theta``
+    (``rho, a*``: the target's polar coordinates in the y-z plane). For a fixed ``a``, f is a sinusoid of
+    theta whose maximum over an interval is its peak, if inside, or an end; f's maximum over theta is
+    convex in ``c = rho cos(a - a*)``, so over the abduction interval it is at an extreme of c: an end,
+    a*, or a* + pi (:class:`_Target`). Returns the squared distances (N, M) and, with ``angles``, the
+    abduction and proximal angles (N, M).
     """
-    lam = np.full(v.shape[0], 1e-4)
-    p, J = _tip_local(lengths_m, v)
-    e = p - target
-    cost = np.einsum("ni,ni->n", e, e)
-    eye = np.eye(3)
-    for _ in range(_LM_ITERATIONS):
-        JtJ = np.einsum("nki,nkj->nij", J, J)
-        g_ = np.einsum("nki,nk->ni", J, e)
-        H = JtJ + lam[:, None, None] * eye
-        step = -np.linalg.solve(H, g_[..., None])[..., 0]
-        v_new = np.clip(v + step, lo, hi)
-        p_new, J_new = _tip_local(lengths_m, v_new)
-        e_new = p_new - target
-        cost_new = np.einsum("ni,ni->n", e_new, e_new)
-        ok = cost_new < cost
-        v = np.where(ok[:, None], v_new, v)
-        J = np.where(ok[:, None, None], J_new, J)
-        e = np.where(ok[:, None], e_new, e)
-        cost = np.where(ok, cost_new, cost)
-        lam = np.where(ok, lam * 0.3, lam * 10.0)
-    return v, cost
+    r, phi = _finger_plane(rows.lengths_m, t2)  # (N, M)
+    th0 = rows.lo[:, 1, None] + phi
+    th1 = rows.hi[:, 1, None] + phi
+    qx, c = q.qx[:, None, None], q.c[:, None, :]
+    f0 = qx * np.sin(th0)[..., None] + c * np.cos(th0)[..., None]  # (N, M, 4)
+    f1 = qx * np.sin(th1)[..., None] + c * np.cos(th1)[..., None]
+    off = (q.beta[:, None, :] - th0[..., None]) % (2 * np.pi)
+    inside = off <= (rows.hi[:, 1] - rows.lo[:, 1])[:, None, None]
+    f = np.where(inside, q.R[:, None, :], np.maximum(f0, f1))
+    d2 = q.q2[:, None] + r * r - 2 * r * f.max(axis=-1)
+    if not angles:
+        return (d2,)
+    n, m = t2.shape
+    k = np.argmax(f, axis=-1)
+    i, j = np.arange(n)[:, None], np.arange(m)[None, :]
+    theta = np.where(inside, th0[..., None] + off, np.where(f0 >= f1, th0[..., None], th1[..., None]))
+    return d2, q.a[i, k], theta[i, j, k] - phi
 
 
-def _nearest_reachable(rows: _Rows, v0: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Multi-start :func:`_refine`: from ``v0`` (N, 3) and each row's grid of joint values; the best wins."""
-    n, s = len(v0), rows.grid.shape[1] + 1
-    starts = np.concatenate([v0[:, None], rows.grid], axis=1).reshape(-1, 3)
-    rep = (lambda a: np.repeat(a, s, axis=0))  # noqa: E731
-    v, cost = _refine(rep(rows.lengths_m), rep(rows.lo), rep(rows.hi), starts, rep(target))
-    best = np.argmin(cost.reshape(n, s), axis=1)
-    return v.reshape(n, s, 3)[np.arange(n), best]
+def _nearest_reachable(rows: _Rows, target: np.ndarray) -> np.ndarray:
+    """The joint values (N, 3) within the limits whose tip is nearest ``target`` (N, 3).
+
+    Exact in abduction and proximal flexion for each middle angle (:func:`_best_at`); the middle angle by
+    a grid over its range (:data:`_GRID_T2` points), zoomed :data:`_ZOOMS` times about the best point.
+    """
+    q = _Target.of(rows, target)
+    lo2, hi2 = rows.lo[:, 2, None], rows.hi[:, 2, None]
+    t2 = lo2 + (hi2 - lo2) * _UNIT_GRID
+    cell = (hi2 - lo2) / (_GRID_T2 - 1)
+    n = np.arange(len(target))
+    for _ in range(_ZOOMS):
+        (d2,) = _best_at(rows, q, t2, angles=False)
+        t2 = np.clip(t2[n, np.argmin(d2, axis=1)][:, None] + cell * _UNIT_ZOOM, lo2, hi2)
+        cell = 2 * cell / (_ZOOM_POINTS - 1)
+    d2, a, t1 = _best_at(rows, q, t2, angles=True)
+    k = np.argmin(d2, axis=1)
+    return np.clip(np.stack([a[n, k], t1[n, k], t2[n, k]], axis=-1), rows.lo, rows.hi)
 
 
 def _solve_rows(rows: _Rows, p_local: np.ndarray) -> np.ndarray:
     """Closed form, then the multi-start refinement of the clipped rows: (N, 3) targets -> (N, 3) joints."""
     v, clipped = _closed_form(rows, p_local)
     if np.any(clipped):
-        v[clipped] = _nearest_reachable(rows.take(clipped), v[clipped], p_local[clipped])
+        v[clipped] = _nearest_reachable(rows.take(clipped), p_local[clipped])
     return v
 
 
@@ -334,10 +374,22 @@ def hand_ik(p_wrist_tips: np.ndarray, seed_joints: np.ndarray) -> np.ndarray:
         raise InputError("hand_ik: the targets have non-finite values")
     out = seed.copy()
     thumb_base = np.clip(seed[_THUMB_BASE], *sah.JOINT_LIMITS[_THUMB_BASE])
-    T = np.stack([_knuckle0(f, thumb_base) for f in sah.FINGERS])
+    T = np.stack([_knuckle0(f, float(thumb_base)) for f in sah.FINGERS])
     p_local = np.einsum("nji,nj->ni", T[..., :3, :3], p - T[..., :3, 3])
     v = _solve_rows(_rows_of(sah.FINGERS), p_local)
     out[_THUMB_BASE] = thumb_base
     for i, f in enumerate(sah.FINGERS):
         out[list(sah.FINGER_JOINTS[f])[-3:]] = v[i]
     return out
+
+
+def fingertips(joints: np.ndarray) -> np.ndarray:
+    """The four fingertips (4, 3) [m] in the wrist frame at joints (13,) [rad]: the IK's own forward
+    kinematics (:func:`finger_fk_local` in each knuckle frame), equal to
+    :func:`assets.sah.fingertip_positions` to ~1e-16 m and several times cheaper for one configuration
+    (the retargeting objective's hot path)."""
+    q = np.asarray(joints, dtype=float)
+    T = np.stack([_knuckle0(f, float(q[_THUMB_BASE])) for f in sah.FINGERS])
+    v = np.stack([q[list(sah.FINGER_JOINTS[f])[-3:]] for f in sah.FINGERS])
+    p_local, _ = _tip_local(_rows_of(sah.FINGERS).lengths_m, v)
+    return np.einsum("nij,nj->ni", T[:, :3, :3], p_local) + T[:, :3, 3]

@@ -108,7 +108,7 @@ def step_costs(
         collision_free: the value of the collision check.
         config: the weights and the unit of d7.
     """
-    err = sah.fingertip_positions_in(T_object_wrist, joints) - p_object_targets
+    err = ik.fingertips(joints) @ T_object_wrist[:3, :3].T + T_object_wrist[:3, 3] - p_object_targets
     d = np.zeros(7)
     d[:4] = 1e3 * np.linalg.norm(err, axis=-1)
     d[4] = _wrist_distance(T_object_wrist, T_object_wrist_desired)

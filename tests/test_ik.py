@@ -100,3 +100,41 @@ def test_bad_input():
         ik.finger_ik("index", np.array([np.nan, 0, 0]))
     with pytest.raises(InputError, match="hand_ik"):
         ik.hand_ik(np.zeros((3, 3)), np.zeros(13))
+
+
+@pytest.mark.parametrize("finger", sah.FINGERS)
+def test_nearest_reachable_point_beats_a_bounded_quasi_newton_from_many_starts(finger):
+    """A second implementation: scipy's L-BFGS-B in the joint limits from 12 starts per target."""
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(12)
+    g = ik.finger_geometry(finger)
+    seed = sah.rest_joints()
+    idx = list(sah.FINGER_JOINTS[finger])
+    knuckle = sah.fk(seed)[f"{finger}_knuckle"][:3, 3]
+    targets = knuckle + rng.normal(size=(5, 3)) * 0.08  # near and around the workspace
+    v = ik.finger_ik(finger, targets, seed[idx])
+    k = len(idx) - 3  # the thumb's base joint stays at the seed's
+
+    def tip(x):
+        q = seed.copy()
+        q[idx[k:]] = x
+        return _tip(finger, q)
+
+    for t, vt in zip(targets, v, strict=True):
+        ours = np.linalg.norm(tip(vt[k:]) - t)
+        starts = g.limits[:, 0] + (g.limits[:, 1] - g.limits[:, 0]) * rng.random((12, 3))
+
+        def cost(x, t=t):
+            return np.sum((tip(x) - t) ** 2)
+
+        ref = min(np.linalg.norm(tip(minimize(cost, s, bounds=g.limits).x) - t) for s in starts)
+        assert ours <= ref + 1e-6, (ours, ref)
+
+
+def test_the_ik_forward_kinematics_equals_the_urdf_forward_kinematics():
+    rng = np.random.default_rng(13)
+    q = _random_joints(rng, 300)
+    ref = sah.fingertip_positions(q)
+    got = np.stack([ik.fingertips(qk) for qk in q])
+    assert np.abs(got - ref).max() < 1e-12

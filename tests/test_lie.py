@@ -68,3 +68,29 @@ def test_quaternion_helpers_and_slerp_match_scipy():
     for a, b in zip(r[2:10], r[10:18], strict=True):
         expected = Slerp([0, 1], Rotation.from_rotvec([a, b]))(s).as_matrix()
         np.testing.assert_allclose(lie.so3_exp(lie.slerp_rotvec(a, b, s)), expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-6, 0.7, np.pi - 1e-7, np.pi])
+def test_so3_log_matches_gtsam_near_identity_and_pi_one_matrix_and_batches(angle):
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(30, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    R = lie.so3_exp(axes * angle)
+    batch = lie.so3_log(R)
+    for k in range(len(R)):
+        one = lie.so3_log(R[k])
+        np.testing.assert_allclose(one, batch[k], atol=1e-15)
+        ref = gtsam.Rot3.Logmap(gtsam.Rot3(R[k]))
+        if angle > np.pi - 1e-6:  # at pi, w and -w are the same rotation: compare the rotations
+            np.testing.assert_allclose(lie.so3_exp(one), R[k], atol=1e-12)
+        else:
+            np.testing.assert_allclose(one, ref, atol=1e-12)
+
+
+def test_so3_exp_of_one_vector_is_scipys_bit_for_bit():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(6)
+    r = rng.normal(size=(2000, 3)) * rng.choice([0.0, 1e-9, 1e-4, 1e-3, 0.5, 3.0], size=(2000, 1))
+    ref = Rotation.from_rotvec(r).as_matrix()
+    np.testing.assert_array_equal(np.array([lie.so3_exp(v) for v in r]), ref)

@@ -112,8 +112,8 @@ def format_table(r: dict) -> str:
     )
     rt = r["retargeting"]
     lines.append(
-        f"retargeting: {rt['s_per_step']:.2f} s/step (max_nfev {rt['max_nfev']}, {rt['steps']} steps of ham; "
-        f"{rt['projected_demo_s']:.0f} s projected for its {rt['demo_steps']} steps)"
+        f"retargeting: {rt['s_per_step']:.2f} s/step ({rt['total_s']:.1f} s for {rt['steps']} steps of "
+        f"{rt['demonstration']}, max_nfev {rt['max_nfev']}, {rt['collision_checks']} collision checks)"
     )
     from pbdgrasp.bench import PLANNING_SCENES
 
