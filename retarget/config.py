@@ -12,10 +12,13 @@ import numpy as np
 
 from assets.errors import InputError
 
-__all__ = ["PAPER_WEIGHTS", "IsFree", "Penetration", "RetargetConfig"]
+__all__ = ["PAPER_WEIGHTS", "TARGETS", "IsFree", "Penetration", "RetargetConfig"]
 
 PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
 """(w1..w7) of the paper for the SAH: thumb, index, middle, ring, wrist, collision, smoothness."""
+
+TARGETS = ("by_grasp_type", "fingertips", "scaled")
+"""The retargeting's fingertip targets (:attr:`RetargetConfig.targets`)."""
 
 IsFree = Callable[[np.ndarray], bool]
 """``is_free(q)``: q (19,) = [p (m), rotation vector (rad), 13 joints (rad)], SAH in the OBJECT frame."""
@@ -60,6 +63,14 @@ class RetargetConfig:
             is farther than this from the previous step's optimum are rejected.
         thumb_base_seed_deg: the thumb's opposition at the first step's seed (without ``joints0``); not
             the rest pose's 90 deg, its upper limit, from which the search rarely leaves.
+        targets: what d1..d4 measure against. ``"fingertips"`` (the paper's): the human fingertip pads,
+            tau_v. ``"scaled"``: each tau_v target moved away from the human palm centre by the SAH's
+            size ratio for that finger (:func:`~retarget.objective.hand_scale`), the palm-to-fingertip
+            vectors of dex-retargeting's vector optimizer and DexPilot; with ``rT_h``'s palm on the human
+            palm, the larger SAH then keeps the human palm's place on the object and its fingers, aimed
+            beyond the human's, stop at contact around it instead of the wrist standing back.
+            ``"by_grasp_type"`` (the default): ``"scaled"`` for a power grasp, ``"fingertips"`` for a
+            precision grasp (measured: docs/results.md, "Strategies that hold").
 
     Raises:
         InputError: a value out of its range.
@@ -82,6 +93,7 @@ class RetargetConfig:
     contact_stop_iterations: int = 4
     max_wrist_step_mm: float = 50.0
     max_wrist_step_deg: float = 20.0
+    targets: str = "by_grasp_type"
 
     def __post_init__(self):
         w = tuple(float(x) for x in self.weights)
@@ -102,5 +114,7 @@ class RetargetConfig:
         trust = (self.max_wrist_step_mm, self.max_wrist_step_deg)
         if not (self.contact_stop_iterations >= 1 and all(np.isfinite(v) and v > 0 for v in trust)):
             raise InputError("contact_stop_iterations must be >= 1, max_wrist_step_mm and _deg > 0")
+        if self.targets not in TARGETS:
+            raise InputError(f"targets: expected one of {', '.join(TARGETS)}, found {self.targets!r}")
         if not all(f > 0 for f in self.escape_factors):
             raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")

@@ -45,6 +45,8 @@ __all__ = [
     "StepObjective",
     "palm_alignment",
     "palm_centre",
+    "hand_scale",
+    "scaled_targets",
     "step_costs",
     "virtual_finger_targets",
 ]
@@ -131,6 +133,31 @@ def _smoothness(joints: np.ndarray, joints_prev: np.ndarray | None, unit: str) -
         return 0.0
     delta = float(np.max(np.abs(joints - joints_prev)))
     return float(np.rad2deg(delta)) if unit == "deg" else delta
+
+
+def hand_scale(virtual_fingers: VirtualFingers) -> np.ndarray:
+    """(4,) per SAH finger: its palm-centre-to-fingertip distance over its human finger's, both hands
+    straight (zero joints); about 2.1 for the thumb and 1.3-1.5 for the fingers."""
+    from assets import human_hand
+
+    tips_r = sah.fingertip_positions(np.zeros(len(sah.JOINT_NAMES)))
+    links = human_hand.fk(np.zeros(len(human_hand.JOINT_NAMES)))
+    tips_h = np.stack([links[human_hand.TIP_LINKS[i]][:3, 3] for i in virtual_fingers.human_indices])
+    r = np.linalg.norm(tips_r - palm_centre(sah), axis=-1)
+    return r / np.linalg.norm(tips_h - palm_centre(human_hand), axis=-1)
+
+
+def scaled_targets(targets: np.ndarray, T_object_hwrist: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """tau_v moved away from the human palm centre: ``P_h + scale_i (tau_v_i - P_h)``, (T, 4, 3) [m].
+
+    Args:
+        targets: (T, 4, 3) tau_v, object frame. T_object_hwrist: (T, 4, 4). scale: (4,), :func:`hand_scale`.
+    """
+    from assets import human_hand
+
+    T = np.asarray(T_object_hwrist, dtype=float)
+    palm = T[:, :3, :3] @ palm_centre(human_hand) + T[:, :3, 3]
+    return palm[:, None] + np.asarray(scale)[None, :, None] * (targets - palm[:, None])
 
 
 def virtual_finger_targets(

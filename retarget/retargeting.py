@@ -4,6 +4,9 @@ Steps, per demonstration:
 
 1. **Virtual fingers** (:mod:`retarget.virtual_fingers`) at the last step of tau_h pick the human finger
    each SAH finger follows; their fingertips in the object frame form tau_v.
+   With ``RetargetConfig.targets = "scaled"`` (the default for power grasps) each target is moved away
+   from the human palm centre by the SAH's size ratio for its finger
+   (:func:`~retarget.objective.hand_scale`).
 2. **Per step t**, the SAH wrist pose (6 DOF) and the thumb's opposition joint minimise
    ``sum_i w_i d_i(k, t)`` (:mod:`retarget.objective`) with Rosenbrock's method
    (:mod:`retarget.rosenbrock`), warm-started at the previous step's optimum. The other finger joints
@@ -36,8 +39,10 @@ from .objective import (
     THUMB_BASE,
     StepCosts,
     StepObjective,
+    hand_scale,
     palm_alignment,
     palm_centre,
+    scaled_targets,
     step_costs,
     virtual_finger_targets,
 )
@@ -296,10 +301,17 @@ def retarget_demonstration(
     vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
     log.info("%s: %s", demo.object, vf.describe())
     targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf, 1e-3 * config.pad_clearance_mm)
+    mode = config.targets
+    if mode == "by_grasp_type":
+        mode = "scaled" if demo.grasp_type == "power" else "fingertips"
+    scale = hand_scale(vf) if mode == "scaled" else np.ones(4)
+    if mode == "scaled":
+        targets = scaled_targets(targets, demo.T_object_wrist, scale)
     result = retarget_fingertips(
         targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,
         progress=progress, penetration=penetration,
     )  # fmt: skip
     meta = dict(result.meta)
     meta.update({"demonstration": demo.path, "object": demo.object, "grasp_type": demo.grasp_type})
+    meta.update({"targets": mode, "hand_scale": scale.tolist()})
     return RetargetResult(**{**result.__dict__, "virtual_fingers": vf, "meta": meta})
