@@ -3,7 +3,9 @@
 * :func:`retarget_in_scene`: section IV with d6 checked in the demonstration's scene (the SAH against the
   object and the table), giving tau_r and Sigma_r(t) as a :class:`~retarget.trajectory.Trajectory`;
 * :func:`object_frame_is_free`, :func:`object_frame_penetration`: the world's queries with q in the object
-  frame, as the retargeting asks them.
+  frame, as the retargeting asks them;
+* :func:`grasp_shape`: how a configuration holds the object (the palm's distance, the links touching), which
+  tells a wrap from a fingertip grasp.
 
 The variation model in a scene (sections V-VI) is :func:`pbdgrasp.scene_model.learn_in_scene`. The CLI
 (``retarget``), the Table I runner and the bench retarget through here.
@@ -27,6 +29,7 @@ from retarget.trajectory import Trajectory
 __all__ = [
     "object_frame_is_free",
     "object_frame_penetration",
+    "grasp_shape",
     "retarget_in_scene",
 ]
 
@@ -61,6 +64,21 @@ def object_frame_penetration(world: World, T_world_object: np.ndarray) -> Callab
     return penetration
 
 
+TOUCH_M = 0.003
+"""A link this close to the object [m] touches it (:func:`grasp_shape`)."""
+
+
+def grasp_shape(world: World, T_world_object: np.ndarray, q_object: np.ndarray) -> dict:
+    """How the SAH at ``q_object`` (19,) (object frame) holds the object of ``world``.
+
+    Returns:
+        ``palm_to_object_mm``: the palm's (the wrist link's collision shape) signed distance to the
+        object [mm]; ``contact_links``: the number of hand links within :data:`TOUCH_M` of it.
+    """
+    d = world.link_signed_distances(_world_q(T_world_object, q_object), 0.2, bodies=(world.object_id,))
+    return {"palm_to_object_mm": 1e3 * float(d[0]), "contact_links": int(np.sum(d <= TOUCH_M))}
+
+
 def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
     """q (19,) with its wrist pose moved from the object frame into the world frame; joints unchanged."""
     q_world = np.array(q_object, dtype=float)
@@ -78,8 +96,9 @@ def retarget_in_scene(
     """Retarget ``demo`` with d6 checked in ``scene`` (None: no collision term), as a trajectory.
 
     Returns:
-        The trajectory (object prior and rate of the demonstration; ``meta`` plus the scene name and the
-        retargeting time) and the full :class:`~retarget.retargeting.RetargetResult`.
+        The trajectory (object prior and rate of the demonstration; ``meta`` plus the scene name, the
+        retargeting time and, in a scene, the last step's :func:`grasp_shape` as ``last_step``) and the
+        full :class:`~retarget.retargeting.RetargetResult`.
     """
     start = time.perf_counter()
     if scene is None:
@@ -88,6 +107,8 @@ def retarget_in_scene(
         with World(scene, hand="sah") as world:
             penetration = object_frame_penetration(world, scene.T_world_object)
             result = retarget_demonstration(demo, config=config, progress=progress, penetration=penetration)
+            shape = grasp_shape(world, scene.T_world_object, result.q[-1])
+        result = RetargetResult(**{**result.__dict__, "meta": {**result.meta, "last_step": shape}})
     traj = result.to_trajectory(
         T_world_object_mean=demo.T_world_object_mean,
         cov_object=demo.cov_object,

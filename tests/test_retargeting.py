@@ -219,11 +219,36 @@ def test_palm_alignment_keeps_the_axes():
         ({"contact_stop_iterations": 0}, "contact_stop_iterations"),
         ({"max_wrist_step_mm": 0.0}, "max_wrist_step_mm"),
         ({"max_wrist_step_deg": float("inf")}, "max_wrist_step_mm and _deg"),
+        ({"targets": "contacts"}, "targets"),
     ],
 )
 def test_invalid_config(kwargs, match):
     with pytest.raises(InputError, match=match):
         RetargetConfig(**kwargs)
+
+
+def test_hand_scale_is_the_ratio_of_the_straight_hands_palm_to_tip_distances():
+    from assets import human_hand
+    from retarget.objective import hand_scale, palm_centre, scaled_targets
+    from retarget.virtual_fingers import virtual_fingers_of
+
+    vf = virtual_fingers_of(np.zeros(20), n_virtual=3, adjacent_only=True)
+    s = hand_scale(vf)
+    # by hand: the SAH's middle finger, straight, against the human finger it follows
+    i = sah.FINGERS.index("middle")
+    human = human_hand.fk(np.zeros(20))[human_hand.TIP_LINKS[vf.human_indices[i]]][:3, 3]
+    sah_tip = sah.fingertip_positions(np.zeros(13))[i]
+    expected = np.linalg.norm(sah_tip - palm_centre(sah)) / np.linalg.norm(human - palm_centre(human_hand))
+    assert s[i] == pytest.approx(expected, rel=1e-12)
+    assert 1.2 < s[1:].min() and s[1:].max() < 1.6 and 1.8 < s[0] < 2.4  # dex-retargeting's 1.2-1.6
+    # the scaled targets lie on the rays from the human palm centre, s times as far
+    rng = np.random.default_rng(0)
+    T = np.stack([lie.se3_exp(rng.normal(size=6) * 0.3) for _ in range(3)])
+    tv = rng.normal(size=(3, 4, 3)) * 0.1
+    palm = T[:, :3, :3] @ palm_centre(human_hand) + T[:, :3, 3]
+    out = scaled_targets(tv, T, s)
+    np.testing.assert_allclose(out - palm[:, None], s[None, :, None] * (tv - palm[:, None]), atol=1e-15)
+    np.testing.assert_allclose(scaled_targets(tv, T, np.ones(4)), tv, atol=1e-15)
 
 
 def test_invalid_targets():
@@ -270,6 +295,9 @@ def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
     assert traj.num_steps == 3 and traj.object == "ham" and traj.grasp_type == "precision"
     assert traj.dt_s == pytest.approx(0.05)
     assert "virtual_fingers" in traj.meta and traj.meta["seed"] == 0
+    assert traj.meta["targets"] == "fingertips" and traj.meta["hand_scale"] == [1.0] * 4  # a precision grasp
+    shape = traj.meta["last_step"]  # the open hand 45 cm above the can: nothing touches
+    assert shape["contact_links"] == 0 and shape["palm_to_object_mm"] > 100
     assert sorted(p.name for p in out.parent.iterdir()) == ["tiny.traj.npz"]  # no temporary left behind
     line = capsys.readouterr().out.strip()
     assert "fingertip RMSE" in line and "steps in collision 0" in line

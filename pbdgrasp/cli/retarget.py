@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from assets.errors import InputError
+from retarget.config import TARGETS
 
 NAME = "retarget"
 HELP = "retarget a human demonstration to the SAH: write tau_r and Sigma_r(t) (.traj.npz)"
@@ -28,6 +29,13 @@ def add_arguments(p) -> None:
     p.add_argument("--scene", help="scene for the collision check (default: the scene named like the object)")
     p.add_argument("--no-collision", action="store_true", help="drop d6 (no collision check; faster)")
     p.add_argument("--max-nfev", type=int, default=None, help="Rosenbrock evaluations per step")
+    p.add_argument(
+        "--targets",
+        choices=TARGETS,
+        default="by_grasp_type",
+        help="fingertip targets: the paper's human fingertips, or scaled from the palm by the hand-size "
+        "ratio (default by_grasp_type: scaled for power grasps)",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -43,7 +51,10 @@ def run(args) -> int:
     if args.max_nfev is not None and args.max_nfev < 1:
         raise InputError(f"--max-nfev: expected a positive number, found {args.max_nfev}")
     demo = Demonstration.load(args.demo)
-    config = RetargetConfig() if args.max_nfev is None else RetargetConfig(max_nfev=args.max_nfev)
+    settings = {"targets": args.targets}
+    if args.max_nfev is not None:
+        settings["max_nfev"] = args.max_nfev
+    config = RetargetConfig(**settings)
     scene = None
     if not args.no_collision:
         scene = load_scene(args.scene or demo.object)
@@ -59,9 +70,16 @@ def run(args) -> int:
     elapsed = time.perf_counter() - start
     traj.save(out)
     collide = result.meta.get("steps_in_collision")
+    shape = result.meta.get("last_step")
+    held = (
+        f"last step: palm {shape['palm_to_object_mm']:.0f} mm from the object, "
+        f"{shape['contact_links']} links touching; "
+        if shape
+        else ""
+    )
     print(
         f"{demo.object} ({demo.grasp_type}): {traj.num_steps} steps, fingertip RMSE {result.rmse_mm:.1f} mm "
-        f"(final step {result.fingertip_rmse_mm[-1]:.1f} mm), "
+        f"(final step {result.fingertip_rmse_mm[-1]:.1f} mm, targets {result.meta['targets']}), {held}"
         f"{result.virtual_fingers.describe() if result.virtual_fingers else ''}, "
         f"steps in collision {'n/a' if collide is None else collide}, {elapsed:.1f} s -> {out}"
     )
