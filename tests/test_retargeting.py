@@ -317,3 +317,42 @@ def test_cli_errors_cleanly_on_a_bad_demonstration(tmp_path, capsys):
     assert "unknown demonstration" in capsys.readouterr().err
     assert main(["retarget", str(bad), "-o", str(tmp_path / "x.npz")]) == 2
     assert ".traj.npz" in capsys.readouterr().err
+
+
+_PALM_LINKS = (
+    "wrist",
+    "thumb_module",
+    "index_proximal",
+    "middle_proximal",
+    "ring_proximal",
+    "thumb_proximal",
+)
+
+
+def _last_step_distances(name, targets):
+    """Per SAH link, the signed distance [m] to the object at tau_r's last step of a whole demonstration."""
+    from pbdgrasp.strategy import _world_q, retarget_in_scene
+    from planning.scene import load_scene
+    from planning.world import World
+    from retarget.demonstration import Demonstration
+
+    scene = load_scene(name)
+    _, res = retarget_in_scene(Demonstration.load(name), scene, RetargetConfig(targets=targets))
+    with World(scene) as world:
+        d = world.link_signed_distances(
+            _world_q(scene.T_world_object, res.q[-1]), 0.2, bodies=(world.object_id,)
+        )
+        return dict(zip((world.base_name, *world.link_names), d, strict=True)), res
+
+
+@pytest.mark.parametrize("name", ["chips", "salt"])
+def test_a_power_strategy_touches_its_object_with_the_palm_or_the_proximal_links(name):
+    from pbdgrasp.strategy import TOUCH_M
+
+    d, res = _last_step_distances(name, "by_grasp_type")
+    assert res.meta["targets"] == "scaled"
+    assert min(d[link] for link in _PALM_LINKS) <= TOUCH_M, {k: round(1e3 * v, 1) for k, v in d.items()}
+    assert res.meta["last_step"]["palm_to_object_mm"] < 10.0
+    if name == "chips":  # the paper's targets: the palm stands back, only fingertips and distals near
+        d_paper, _ = _last_step_distances(name, "fingertips")
+        assert d_paper["wrist"] > 0.03
