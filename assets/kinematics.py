@@ -186,27 +186,20 @@ class HandModel:
         src, mult, off = self._plan[1]
         return joints[..., src] * mult + off
 
-    def fk(self, joints: np.ndarray, links: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    def fk(self, joints: np.ndarray) -> dict[str, np.ndarray]:
         """Forward kinematics.
 
         Args:
             joints: (..., n) actuated joint values [rad] in :attr:`joint_names` order.
-            links: compute only these links and their ancestors (default: every link).
 
         Returns:
             dict link name -> ``T_base_link`` (..., 4, 4), including the base link (identity).
-
-        Raises:
-            InputError: an unknown link in ``links``.
         """
         q = self.expand(joints)
         batch = q.shape[:-1]
         out = {self.base_link: np.broadcast_to(np.eye(4), batch + (4, 4))}
         K, K2 = self._plan[2]
-        needed = None if links is None else self._ancestors(links)
         for i, j in enumerate(self.joints):
-            if needed is not None and j.child not in needed:
-                continue
             T = out[j.parent] @ j.T_parent_joint
             if j.type != "fixed":
                 th = q[..., i, None, None]
@@ -215,18 +208,6 @@ class HandModel:
                 T[..., :3, :3] = T[..., :3, :3] @ R
             out[j.child] = T
         return out
-
-    def _ancestors(self, links: tuple[str, ...]) -> set[str]:
-        parent = {j.child: j.parent for j in self.joints}
-        needed = set()
-        for link in links:
-            if link not in self.link_names:
-                valid = ", ".join(self.link_names)
-                raise InputError(f"{self.name}: unknown link {link!r}; valid names: {valid}")
-            while link not in needed and link != self.base_link:
-                needed.add(link)
-                link = parent[link]
-        return needed
 
     def chain(self, link: str) -> list[int]:
         """Indices into :attr:`joints` of the moving joints from the base to ``link``."""

@@ -119,7 +119,7 @@ def fk(joints: np.ndarray) -> dict[str, np.ndarray]:
 
 def fingertip_positions(joints: np.ndarray) -> np.ndarray:
     """Fingertip positions in the wrist frame, (..., 13) -> (..., 4, 3) [m], :data:`FINGERS` order."""
-    poses = model().fk(joints, TIP_LINKS)
+    poses = fk(joints)
     return np.stack([poses[t][..., :3, 3] for t in TIP_LINKS], axis=-2)
 
 

@@ -313,23 +313,15 @@ def bench_retargeting(
 ) -> dict:
     """Seconds per step of retargeting a demonstration as a Table I build does it (:func:`retarget_in_scene`,
     d6 with the penetration depth): all its steps, or its first ``num_steps`` (the quick bench)."""
-    import dataclasses
-
     from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
     from retarget.retargeting import RetargetConfig
 
     demo = Demonstration.load(demo_name)
-    n = demo.num_steps if num_steps is None else min(num_steps, demo.num_steps)
-    if n < demo.num_steps:
-        whole = demo.num_steps
-        cut = {
-            f.name: getattr(demo, f.name)[:n]
-            for f in dataclasses.fields(demo)
-            if isinstance(getattr(demo, f.name), np.ndarray) and getattr(demo, f.name).shape[:1] == (whole,)
-        }
-        demo = dataclasses.replace(demo, **cut)
+    if num_steps is not None:
+        demo = demo.first_steps(num_steps)
+    n = demo.num_steps
     config = RetargetConfig() if max_nfev is None else RetargetConfig(max_nfev=max_nfev)
     t0 = time.perf_counter()
     _, res = retarget_in_scene(demo, load_scene(demo.object), config)

@@ -25,7 +25,7 @@ The header holds: ``format``, ``version``, ``object``, ``grasp_type`` (precision
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -210,6 +210,23 @@ class Demonstration:
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
+
+    def first_steps(self, n: int) -> Demonstration:
+        """The demonstration's first ``n`` steps (all of them when ``n`` is not smaller), every per-step
+        array cut alike.
+
+        Raises:
+            InputError: fewer than 2 steps.
+        """
+        if n >= self.num_steps:
+            return self
+        whole = self.num_steps
+        cut = {
+            f.name: getattr(self, f.name)[:n]
+            for f in fields(self)
+            if isinstance(getattr(self, f.name), np.ndarray) and getattr(self, f.name).shape[:1] == (whole,)
+        }
+        return replace(self, **cut)
 
     def q26(self, step: int, true: bool = False) -> np.ndarray:
         """The human hand configuration ``[p (3, m), rotvec (3, rad), 20 joints (rad)]`` at ``step``.

@@ -32,14 +32,24 @@ from assets import sah
 from assets.errors import InputError
 from assets.se3 import skew
 
-__all__ = ["FingerGeometry", "finger_geometry", "finger_ik", "hand_ik", "finger_fk_local", "fingertips"]
+__all__ = [
+    "THUMB_BASE",
+    "FingerGeometry",
+    "finger_geometry",
+    "finger_ik",
+    "hand_ik",
+    "finger_fk_local",
+    "fingertips",
+]
 
 _GRID_T2 = 64  # middle-joint values of the nearest-point search over the joint range
 _ZOOM_POINTS = 33  # values per zoom, over two grid cells about the best one so far
 _ZOOMS = 2  # zooms: the middle angle to (range / 63) / 16^2, about 0.006 deg
 _UNIT_GRID = np.linspace(0.0, 1.0, _GRID_T2)
 _UNIT_ZOOM = np.linspace(-1.0, 1.0, _ZOOM_POINTS)
-_THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
+THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
+"""Index of the thumb's opposition joint in the 13 joints: the IK keeps it from the seed."""
+_FLEXION = [list(sah.FINGER_JOINTS[f])[-3:] for f in sah.FINGERS]  # abd, prox, mid of each finger
 
 
 @dataclass(frozen=True)
@@ -120,6 +130,11 @@ def _knuckle0(finger: str, thumb_base: float) -> np.ndarray:
     T = _T_wrist_knuckle0(finger_geometry(finger), np.array([thumb_base]))[0]
     T.setflags(write=False)
     return T
+
+
+def _knuckle_frames(thumb_base: float) -> np.ndarray:
+    """(4, 4, 4) the four fingers' :func:`_knuckle0` frames, :data:`assets.sah.FINGERS` order."""
+    return np.stack([_knuckle0(f, float(thumb_base)) for f in sah.FINGERS])
 
 
 def finger_fk_local(g: FingerGeometry, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,7 +319,7 @@ def _nearest_reachable(rows: _Rows, target: np.ndarray) -> np.ndarray:
 
 
 def _solve_rows(rows: _Rows, p_local: np.ndarray) -> np.ndarray:
-    """Closed form, then the multi-start refinement of the clipped rows: (N, 3) targets -> (N, 3) joints."""
+    """Closed form, then the nearest reachable point of the clipped rows: (N, 3) targets -> (N, 3) joints."""
     v, clipped = _closed_form(rows, p_local)
     if np.any(clipped):
         v[clipped] = _nearest_reachable(rows.take(clipped), p_local[clipped])
@@ -373,13 +388,13 @@ def hand_ik(p_wrist_tips: np.ndarray, seed_joints: np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(p)):
         raise InputError("hand_ik: the targets have non-finite values")
     out = seed.copy()
-    thumb_base = np.clip(seed[_THUMB_BASE], *sah.JOINT_LIMITS[_THUMB_BASE])
-    T = np.stack([_knuckle0(f, float(thumb_base)) for f in sah.FINGERS])
+    thumb_base = np.clip(seed[THUMB_BASE], *sah.JOINT_LIMITS[THUMB_BASE])
+    T = _knuckle_frames(thumb_base)
     p_local = np.einsum("nji,nj->ni", T[..., :3, :3], p - T[..., :3, 3])
     v = _solve_rows(_rows_of(sah.FINGERS), p_local)
-    out[_THUMB_BASE] = thumb_base
-    for i, f in enumerate(sah.FINGERS):
-        out[list(sah.FINGER_JOINTS[f])[-3:]] = v[i]
+    out[THUMB_BASE] = thumb_base
+    for i, idx in enumerate(_FLEXION):
+        out[idx] = v[i]
     return out
 
 
@@ -389,7 +404,6 @@ def fingertips(joints: np.ndarray) -> np.ndarray:
     :func:`assets.sah.fingertip_positions` to ~1e-16 m and several times cheaper for one configuration
     (the retargeting objective's hot path)."""
     q = np.asarray(joints, dtype=float)
-    T = np.stack([_knuckle0(f, float(q[_THUMB_BASE])) for f in sah.FINGERS])
-    v = np.stack([q[list(sah.FINGER_JOINTS[f])[-3:]] for f in sah.FINGERS])
-    p_local, _ = _tip_local(_rows_of(sah.FINGERS).lengths_m, v)
+    T = _knuckle_frames(q[THUMB_BASE])
+    p_local, _ = _tip_local(_rows_of(sah.FINGERS).lengths_m, q[_FLEXION])
     return np.einsum("nij,nj->ni", T[:, :3, :3], p_local) + T[:, :3, 3]

@@ -51,7 +51,7 @@ __all__ = [
     "virtual_finger_targets",
 ]
 
-THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
+THUMB_BASE = ik.THUMB_BASE
 """Index of the thumb's opposition joint, the seventh search variable, in the 13 joints."""
 
 

@@ -304,8 +304,9 @@ def retarget_demonstration(
     mode = config.targets
     if mode == "by_grasp_type":
         mode = "scaled" if demo.grasp_type == "power" else "fingertips"
-    scale = hand_scale(vf) if mode == "scaled" else np.ones(4)
+    scale = np.ones(4)
     if mode == "scaled":
+        scale = hand_scale(vf)
         targets = scaled_targets(targets, demo.T_object_wrist, scale)
     result = retarget_fingertips(
         targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,

@@ -153,3 +153,15 @@ def test_bad_files(tmp_path):
         Demonstration.load(tmp_path / "missing.npz")
     with pytest.raises(InputError, match="unknown demonstration"):
         Demonstration.load("teapot")
+
+
+def test_first_steps_cuts_every_per_step_array_alike():
+    from retarget.demonstration import Demonstration
+
+    demo = Demonstration.load("ham")
+    head = demo.first_steps(5)
+    assert head.num_steps == 5 and head.object == demo.object and head.rate_hz == demo.rate_hz
+    for name in ("T_object_wrist", "joints", "t_s", "T_object_wrist_true", "joints_true"):
+        np.testing.assert_array_equal(getattr(head, name), getattr(demo, name)[:5])
+    np.testing.assert_array_equal(head.T_world_object_mean, demo.T_world_object_mean)
+    assert demo.first_steps(demo.num_steps) is demo and demo.first_steps(10_000) is demo

@@ -20,6 +20,13 @@ def _tip(finger, q13):
     return sah.fingertip_positions(q13)[..., sah.FINGERS.index(finger), :]
 
 
+def _finger_at_rest(finger):
+    """(geometry, the rest joints, the finger's joint indices, its knuckle position) of one finger."""
+    seed = sah.rest_joints()
+    knuckle = sah.fk(seed)[f"{finger}_knuckle"][:3, 3]
+    return ik.finger_geometry(finger), seed, list(sah.FINGER_JOINTS[finger]), knuckle
+
+
 @pytest.mark.parametrize("finger", sah.FINGERS)
 def test_round_trip_reachable_points(finger):
     rng = np.random.default_rng(10)
@@ -37,10 +44,7 @@ def test_round_trip_reachable_points(finger):
 @pytest.mark.parametrize("finger", sah.FINGERS)
 def test_unreachable_target_is_shortened_to_nearest_reachable(finger):
     rng = np.random.default_rng(11)
-    g = ik.finger_geometry(finger)
-    seed = sah.rest_joints()
-    idx = list(sah.FINGER_JOINTS[finger])
-    knuckle = sah.fk(seed)[f"{finger}_knuckle"][:3, 3]
+    g, seed, idx, knuckle = _finger_at_rest(finger)
     samples = _random_joints(rng, 40000)
     samples[:, idx[0]] = seed[idx[0]] if finger == "thumb" else samples[:, idx[0]]
     cloud = _tip(finger, samples)
@@ -108,10 +112,7 @@ def test_nearest_reachable_point_beats_a_bounded_quasi_newton_from_many_starts(f
     from scipy.optimize import minimize
 
     rng = np.random.default_rng(12)
-    g = ik.finger_geometry(finger)
-    seed = sah.rest_joints()
-    idx = list(sah.FINGER_JOINTS[finger])
-    knuckle = sah.fk(seed)[f"{finger}_knuckle"][:3, 3]
+    g, seed, idx, knuckle = _finger_at_rest(finger)
     targets = knuckle + rng.normal(size=(5, 3)) * 0.08  # near and around the workspace
     v = ik.finger_ik(finger, targets, seed[idx])
     k = len(idx) - 3  # the thumb's base joint stays at the seed's
