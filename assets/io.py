@@ -1,14 +1,23 @@
-"""File-format helpers shared by every package: atomic writes and input validation.
+"""File-format helpers shared by every package: the output policy, atomic writes and input validation.
 
-Every file pbdgrasp writes goes through :func:`atomic_write` (a temporary file in the same directory,
-then ``os.replace``), so a failed or killed run never leaves a partial file. Every loader validates with
-the ``require_*`` helpers, which raise :class:`assets.errors.InputError` naming the field.
+The output policy, for every file pbdgrasp writes:
+
+* before any work, :func:`check_output_file` (or :func:`check_output_dir`) resolves the path and refuses a
+  directory, a missing parent directory, a place that cannot be written, a special file (a device, a
+  FIFO, a socket) and a name whose extension does not match the format;
+* :func:`atomic_write` fills a temporary file in the same directory and renames it onto the target, so a
+  failed or killed run never leaves a partial file; it replaces only regular files (keeping their mode)
+  and writes through a symbolic link to the file it points to.
+
+Every loader validates with the ``require_*`` helpers, which raise :class:`assets.errors.InputError`
+naming the field.
 """
 
 from __future__ import annotations
 
 import io
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -18,6 +27,8 @@ import numpy as np
 from .errors import InputError
 
 __all__ = [
+    "check_output_file",
+    "check_output_dir",
     "atomic_write",
     "atomic_savez",
     "load_npz",
@@ -29,28 +40,113 @@ __all__ = [
 ]
 
 
+def _writable_dir(directory: Path, shown: str) -> None:
+    """Raise :class:`InputError` unless a file can be created in ``directory`` (probed, so that it holds
+    for root and for read-only file systems alike)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".pbdgrasp-probe.", dir=directory)
+    except OSError as exc:
+        raise InputError(f"cannot write in directory {directory} ({exc.strerror or exc})", shown) from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def check_output_file(path: str | os.PathLike, suffixes: tuple[str, ...]) -> Path:
+    """Resolve and check a file to be written, before the work that produces it.
+
+    Args:
+        path: the output as given (a symbolic link is followed to the file it points to).
+        suffixes: the accepted endings of the name, e.g. ``(".png",)``; compared without case.
+
+    Returns:
+        The absolute path to write (the link's target for a link).
+
+    Raises:
+        InputError: an empty name, a name without one of ``suffixes``, a directory, a special file (device,
+            FIFO, socket), a read-only file, a missing parent directory or one that cannot be written.
+    """
+    shown = str(path)
+    if not shown:
+        raise InputError("expected an output file name, found an empty string")
+    given = Path(path)
+    if not given.name.lower().endswith(tuple(s.lower() for s in suffixes)):
+        raise InputError(f"expected a file name ending in {' or '.join(suffixes)}", shown)
+    target = Path(os.path.realpath(given))
+    if target.exists():
+        mode = target.stat().st_mode
+        if stat.S_ISDIR(mode):
+            raise InputError("is a directory; expected a file name", shown)
+        if not stat.S_ISREG(mode):
+            raise InputError("is a special file (a device, FIFO or socket); refusing to replace it", shown)
+        if not os.access(target, os.W_OK):
+            raise InputError("is a read-only file; refusing to replace it", shown)
+    parent = target.parent
+    if not parent.is_dir():
+        raise InputError(f"directory {parent} does not exist", shown)
+    _writable_dir(parent, shown)
+    return target
+
+
+def check_output_dir(path: str | os.PathLike) -> Path:
+    """Resolve and check a directory to be written into (created later if missing).
+
+    Returns:
+        The absolute directory.
+
+    Raises:
+        InputError: an empty name, a path that exists and is not a directory, or one whose nearest
+            existing ancestor is not a writable directory.
+    """
+    shown = str(path)
+    if not shown:
+        raise InputError("expected a directory name, found an empty string")
+    target = Path(os.path.realpath(path))
+    if target.exists() and not target.is_dir():
+        raise InputError("exists and is not a directory", shown)
+    existing = target
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(f"{existing} is not a directory", shown)
+    _writable_dir(existing, shown)
+    return target
+
+
 def atomic_write(path: str | os.PathLike, write: Callable[[io.BufferedWriter], None]) -> Path:
     """Write a file atomically: ``write(f)`` fills a temporary file that is then renamed onto ``path``.
+
+    A symbolic link is written through (its target is replaced, the link stays); an existing regular
+    file keeps its permission bits; anything else that exists at the target is refused.
 
     Args:
         path: destination; its directory is created if missing.
         write: called with a binary file object opened for writing.
 
     Returns:
-        The destination path.
+        The destination path as given.
+
+    Raises:
+        InputError: the target exists and is a directory or a special file (device, FIFO, socket).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    target = Path(os.path.realpath(path))
     umask = os.umask(0)
     os.umask(umask)
+    mode = 0o666 & ~umask  # mkstemp creates 0600; give a new file an ordinary open()'s mode
+    if target.exists():
+        st = target.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise InputError("is not a regular file; refusing to replace it", path)
+        mode = stat.S_IMODE(st.st_mode)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp creates 0600; give the file an ordinary open()'s mode
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
