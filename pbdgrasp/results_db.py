@@ -3,6 +3,13 @@
 A trial row is written as soon as the trial ends, in WAL mode with one short transaction per row, so a
 run killed at any moment loses nothing that finished and repeats nothing on resume: the runner asks
 :func:`finished_keys` first and skips those trials. Only the coordinating process writes.
+
+A database is checked when it is opened, before any work: an existing file must be an SQLite database
+with this project's ``trials`` table and a schema version this code reads (table ``meta``), and must not
+be locked by another writer. Every trial stores the parameters of its run (``params_json``: scene or row,
+the models by content hash, the planner's settings, the seed); :func:`check_params` refuses to add trials
+of the same row and planner made with other parameters, and :func:`set_aside` moves a database out of the
+way (keeping it) for a fresh start.
 """
 
 from __future__ import annotations
@@ -11,10 +18,29 @@ import json
 import os
 import sqlite3
 import subprocess
+import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-__all__ = ["TrialRecord", "open_db", "finished_keys", "insert_trial", "load_trials", "source_commit"]
+from assets.errors import InputError
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "TrialRecord",
+    "open_db",
+    "set_aside",
+    "check_params",
+    "finished_keys",
+    "insert_trial",
+    "load_trials",
+    "source_commit",
+]
+
+SCHEMA_VERSION = 2
+"""Version 1: the ``trials`` table alone; 2: with the ``meta`` table (read and upgraded in place)."""
+
+_META = "CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)"
+_SQLITE_HEADER = b"SQLite format 3\x00"
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS trials (
@@ -87,16 +113,158 @@ class TrialRecord:
         return d
 
 
-def open_db(path: str | os.PathLike) -> sqlite3.Connection:
-    """Open (creating if needed) a results database in WAL mode."""
+def _columns() -> list[str]:
+    return [f.name for f in fields(TrialRecord)]
+
+
+def open_db(
+    path: str | os.PathLike,
+    *,
+    create: bool = True,
+    lock_timeout_s: float = 5.0,
+    busy_timeout_s: float = 600.0,
+) -> sqlite3.Connection:
+    """Open a results database in WAL mode, checked (module docstring), creating it if missing.
+
+    Args:
+        path: the database file.
+        create: make a new database if ``path`` does not exist (``False``: refuse).
+        lock_timeout_s: how long to wait at opening for another writer to finish.
+        busy_timeout_s: how long a later write waits for another writer (long, so that a finished trial
+            is not lost to a reader's brief lock).
+
+    Raises:
+        InputError: missing (with ``create=False``), not a regular file, not an SQLite database, damaged,
+            of another schema or a newer version, or locked by another process.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    conn = sqlite3.connect(path, timeout=30.0)
-    conn.execute("PRAGMA journal_mode=WAL")
-    conn.execute("PRAGMA synchronous=NORMAL")
-    conn.execute(_SCHEMA)
-    conn.commit()
+    existed = path.exists()
+    if existed:
+        if not path.is_file():
+            raise InputError("is not a regular file; expected a results database", path)
+        with path.open("rb") as f:
+            header = f.read(len(_SQLITE_HEADER))
+        if header != _SQLITE_HEADER:
+            raise InputError("is not an SQLite database (an empty, truncated or foreign file)", path)
+    elif not create:
+        raise InputError("no such results database", path)
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    conn = sqlite3.connect(path, timeout=lock_timeout_s)
+    try:
+        _check_and_upgrade(conn, path, existed)
+    except sqlite3.OperationalError as exc:
+        conn.close()
+        if "locked" in str(exc) or "busy" in str(exc):
+            raise InputError(
+                "is locked by another process (a run still writing to it?); wait for it to finish or use "
+                "another database",
+                path,
+            ) from None
+        raise InputError(f"is not a readable results database ({exc})", path) from None
+    except sqlite3.DatabaseError as exc:
+        conn.close()
+        raise InputError(f"is not a readable SQLite database ({exc})", path) from None
+    except InputError:
+        conn.close()
+        raise
+    conn.execute(f"PRAGMA busy_timeout={int(busy_timeout_s * 1000)}")
     return conn
+
+
+def _check_and_upgrade(conn: sqlite3.Connection, path: Path, existed: bool) -> None:
+    if existed:
+        (ok,) = conn.execute("PRAGMA quick_check").fetchone()
+        if ok != "ok":
+            raise InputError(f"is a damaged SQLite database ({ok})", path)
+        tables = {n for (n,) in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "trials" not in tables:
+            raise InputError(
+                f"is an SQLite database of another schema (tables: {', '.join(sorted(tables)) or 'none'}; "
+                "expected pbdgrasp's 'trials')",
+                path,
+            )
+        columns = [r[1] for r in conn.execute("PRAGMA table_info(trials)")]
+        if columns != _columns():
+            raise InputError(f"has a 'trials' table of another schema (columns {', '.join(columns)})", path)
+        version = 1
+        if "meta" in tables:
+            row = conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+            version = int(row[0]) if row and str(row[0]).isdigit() else 0
+        if not 1 <= version <= SCHEMA_VERSION:
+            raise InputError(
+                f"has schema version {version}; this pbdgrasp reads versions 1 to {SCHEMA_VERSION}", path
+            )
+    conn.execute(
+        "BEGIN IMMEDIATE"
+    )  # the lock probe: fails now, not after the work, if another writer holds it
+    conn.execute(_SCHEMA)
+    conn.execute(_META)
+    conn.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+    conn.commit()
+    if conn.execute("PRAGMA journal_mode=WAL").fetchone()[0] != "wal":
+        raise InputError("cannot be switched to WAL mode (a read-only or network file system?)", path)
+    conn.execute("PRAGMA synchronous=NORMAL")
+
+
+def set_aside(path: str | os.PathLike) -> Path | None:
+    """Move a results database out of the way for a fresh one, keeping it: its write-ahead log is folded in
+    first, then it is renamed to ``<name>.<YYYYmmdd-HHMMSS>.bak`` beside it. No connection to it may be
+    open (this process's or another's).
+
+    Returns:
+        The backup's path, or ``None`` if there was no database.
+
+    Raises:
+        InputError: the file is not a results database (nothing is moved), or it is locked.
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    conn = open_db(path, create=False)
+    try:
+        conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        conn.execute("PRAGMA journal_mode=DELETE")
+    finally:
+        conn.close()
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    backup = path.with_name(f"{path.name}.{stamp}.bak")
+    n = 1
+    while backup.exists():
+        backup = path.with_name(f"{path.name}.{stamp}-{n}.bak")
+        n += 1
+    os.replace(path, backup)
+    return backup
+
+
+def check_params(
+    conn: sqlite3.Connection, expected: dict[tuple[str, str], str], hint: str, ignore: tuple[str, ...] = ()
+) -> None:
+    """Refuse a run whose parameters differ from those of the trials stored for the same row and planner.
+
+    Args:
+        expected: per (row, planner), the run's canonical :func:`params_json`.
+        hint: what the user can do instead (named options), appended to the message.
+        ignore: parameter names left out of the comparison (not known yet).
+
+    Raises:
+        InputError: naming the row, the planner and the parameters that differ.
+    """
+    for (row, planner), pj in expected.items():
+        stored = {
+            p for (p,) in conn.execute("SELECT DISTINCT params_json FROM trials WHERE row=? AND planner=?",
+                                       (row, planner))
+        }  # fmt: skip
+        b = json.loads(pj)
+        for text in stored:
+            a = json.loads(text)
+            diff = sorted(k for k in set(a) | set(b) if k not in ignore and a.get(k) != b.get(k))
+            if not diff:
+                continue
+            raise InputError(
+                f"the database holds {row}/{planner} trials run with other parameters ({', '.join(diff)}); "
+                f"{hint}"
+            )
 
 
 def finished_keys(conn: sqlite3.Connection) -> set[tuple[str, str, int]]:
@@ -105,20 +273,33 @@ def finished_keys(conn: sqlite3.Connection) -> set[tuple[str, str, int]]:
 
 
 def insert_trial(conn: sqlite3.Connection, rec: TrialRecord) -> None:
-    """Store one trial in its own transaction; a trial already stored is left as it is."""
-    names = [f.name for f in fields(TrialRecord)]
+    """Store one trial in its own transaction; a trial already stored is left as it is.
+
+    Raises:
+        InputError: the database stayed locked for the whole busy timeout of :func:`open_db`; the trial
+            is then appended as a JSON line to ``<database>.unsaved.jsonl`` beside it, and the message
+            names that file.
+    """
+    names = _columns()
     values = [getattr(rec, n) for n in names]
     values[names.index("success")] = int(rec.success)
-    with conn:
-        conn.execute(
-            f"INSERT OR IGNORE INTO trials ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})",
-            values,
-        )
+    try:
+        with conn:
+            conn.execute(
+                f"INSERT OR IGNORE INTO trials ({', '.join(names)}) VALUES ({', '.join('?' * len(names))})",
+                values,
+            )
+    except sqlite3.OperationalError as exc:
+        db = Path(conn.execute("PRAGMA database_list").fetchone()[2])
+        side = db.with_name(db.name + ".unsaved.jsonl")
+        with side.open("a") as f:
+            f.write(json.dumps(asdict(rec), sort_keys=True) + "\n")
+        raise InputError(f"cannot store a finished trial ({exc}); it was kept in {side}", db) from None
 
 
 def load_trials(conn: sqlite3.Connection, rows: list[str] | None = None) -> list[TrialRecord]:
     """All stored trials (optionally of some rows), ordered by row, planner and trial."""
-    names = [f.name for f in fields(TrialRecord)]
+    names = _columns()
     out = []
     for values in conn.execute(f"SELECT {', '.join(names)} FROM trials ORDER BY row, planner, trial"):
         d = dict(zip(names, values, strict=True))

@@ -45,3 +45,112 @@ def test_source_commit_names_head_and_marks_uncommitted_sources_dirty(tmp_path):
     assert source_commit(tmp_path) == head
     (tmp_path / "code.py").write_text("a = 2\n")
     assert source_commit(tmp_path) == head + "-dirty"
+
+
+# -- checked at opening, settings remembered, nothing lost ------------------------------------------
+def test_a_database_of_schema_version_1_is_read_and_upgraded(tmp_path):
+    import sqlite3
+
+    from pbdgrasp.results_db import _SCHEMA, SCHEMA_VERSION
+
+    db = tmp_path / "v1.sqlite"
+    conn = sqlite3.connect(db)
+    conn.execute(_SCHEMA)  # the trials table alone, as version 1 wrote it
+    conn.commit()
+    conn.close()
+    conn = open_db(db)
+    insert_trial(conn, rec(0))
+    version = conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()[0]
+    assert int(version) == SCHEMA_VERSION and len(load_trials(conn)) == 1
+    conn.close()
+
+
+def test_a_locked_database_is_refused_at_opening_not_after_the_work(tmp_path):
+    import sqlite3
+
+    import pytest
+
+    from assets.errors import InputError
+
+    db = tmp_path / "r.sqlite"
+    open_db(db).close()
+    other = sqlite3.connect(db)
+    other.execute("BEGIN IMMEDIATE")  # another run holds the write lock
+    try:
+        with pytest.raises(InputError, match="locked by another process"):
+            open_db(db, lock_timeout_s=0.05)
+    finally:
+        other.rollback()
+        other.close()
+
+
+def test_a_trial_that_cannot_be_stored_is_kept_beside_the_database(tmp_path):
+    import dataclasses
+    import json
+    import sqlite3
+
+    import pytest
+
+    from assets.errors import InputError
+
+    db = tmp_path / "r.sqlite"
+    conn = open_db(db, busy_timeout_s=0.05)
+    other = sqlite3.connect(db)
+    other.execute("BEGIN IMMEDIATE")
+    try:
+        with pytest.raises(InputError, match="r.sqlite.unsaved.jsonl"):
+            insert_trial(conn, rec(7))
+    finally:
+        other.rollback()
+        other.close()
+    kept = [json.loads(line) for line in (tmp_path / "r.sqlite.unsaved.jsonl").read_text().splitlines()]
+    assert kept == [dataclasses.asdict(rec(7))]
+    conn.close()
+
+
+def test_set_aside_keeps_every_stored_trial(tmp_path):
+    from pbdgrasp.results_db import set_aside
+
+    db = tmp_path / "r.sqlite"
+    conn = open_db(db)
+    for t in range(5):
+        insert_trial(conn, rec(t))  # in the write-ahead log until a checkpoint
+    conn.close()
+    backup = set_aside(db)
+    assert not any(tmp_path.glob("r.sqlite-*"))  # the log folded in, nothing left behind
+    assert not db.exists() and backup.name.startswith("r.sqlite.") and backup.suffix == ".bak"
+    conn = open_db(backup, create=False)
+    assert finished_keys(conn) == {("ham", "learned", t) for t in range(5)}
+    conn.close()
+    assert set_aside(db) is None
+
+
+def test_other_parameters_are_refused_naming_what_differs(tmp_path):
+    import pytest
+
+    from assets.errors import InputError
+    from pbdgrasp.results_db import check_params, params_json
+
+    conn = open_db(tmp_path / "r.sqlite")
+    stored = {"scene": "ham", "seed": 0, "settings": {"time_limit_s": 10.0}}
+    insert_trial(conn, _with_params(rec(0), stored))
+    check_params(conn, {("ham", "learned"): params_json(stored)}, "hint")  # the same: accepted
+    check_params(conn, {("ham", "baseline"): params_json({**stored, "seed": 1})}, "hint")  # other planner
+    with pytest.raises(
+        InputError, match=r"ham/learned trials run with other parameters \(seed, settings\); h"
+    ):
+        check_params(
+            conn,
+            {("ham", "learned"): params_json({**stored, "seed": 1, "settings": {"time_limit_s": 1}})},
+            "h",
+        )
+    check_params(conn, {("ham", "learned"): params_json({**stored, "seed": 1})}, "h", ignore=("seed",))
+    conn.close()
+
+
+def _with_params(r: TrialRecord, params: dict) -> TrialRecord:
+    import dataclasses
+
+    from pbdgrasp.results_db import params_json
+
+    return dataclasses.replace(r, params_json=params_json(params))
