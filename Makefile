@@ -46,7 +46,8 @@ test: setup
 	MPLBACKEND=Agg $(BIN)/python -m pytest --nbmake notebooks/
 
 table1: setup
-	$(BIN)/pbdgrasp table1 --seed 0 --planners learned,baseline,bidirectional,goal_region,ompl
+	$(BIN)/pbdgrasp table1 --seed 0 --planners learned,baseline,bidirectional,goal_region,ompl \
+	  --db results/table1.sqlite --cache-dir results/cache --report-dir results
 
 bench: setup
 	$(BIN)/pbdgrasp bench

@@ -17,13 +17,14 @@ import json
 import logging
 import os
 import platform
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 import assets
+from assets.errors import InputError
 
 __all__ = [
     "CACHE_VERSION",
@@ -168,11 +169,20 @@ class Strategy:
     mse_mm2: float
 
 
+def _missing(what: str, path: Path) -> InputError:
+    return InputError(
+        f"{what} is not cached (expected {path.name}); run without --report-only first", path.parent
+    )
+
+
 def prepare_trajectory(
     row: str,
     cache_dir: str | os.PathLike,
     progress: bool | None = False,
     retarget_max_nfev: int | None = None,
+    *,
+    build: bool = True,
+    on_stage: Callable[[str], None] | None = None,
 ) -> Path:
     """The retargeted trajectory of a row's strategy (its demonstration retargeted in the demonstrated
     object's own scene), cached by the hash of its inputs.
@@ -182,9 +192,14 @@ def prepare_trajectory(
         cache_dir: the cache folder (created if missing).
         progress: the retargeting's tqdm bar.
         retarget_max_nfev: Rosenbrock evaluations per retargeting step (None: the retargeting's default).
+        build: retarget on a cache miss (``False``: raise instead).
+        on_stage: called with one line before a cache miss is computed.
 
     Returns:
         The cached ``.traj.npz`` path.
+
+    Raises:
+        InputError: a cache miss with ``build=False``.
     """
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
@@ -212,7 +227,11 @@ def prepare_trajectory(
     )
     traj_path = cache / f"{scene.strategy}-{traj_key[:16]}.traj.npz"
     if not traj_path.is_file():
+        if not build:
+            raise _missing(f"the retargeted {scene.strategy} demonstration", traj_path)
         log.info("retargeting %s (cache miss) -> %s", scene.strategy, traj_path)
+        if on_stage:
+            on_stage(f"{row}: retargeting the {scene.strategy} demonstration ({demo.num_steps} steps)")
         traj, _ = retarget_in_scene(demo, demo_scene, config, progress=bool(progress))
         traj.save(traj_path)
     return traj_path
@@ -223,6 +242,9 @@ def prepare_strategy(
     cache_dir: str | os.PathLike,
     progress: bool | None = False,
     retarget_max_nfev: int | None = None,
+    *,
+    build: bool = True,
+    on_stage: Callable[[str], None] | None = None,
 ) -> Strategy:
     """Demonstration -> retargeting -> inference for one row, each step cached by the hash of its inputs.
 
@@ -231,9 +253,14 @@ def prepare_strategy(
         cache_dir: the cache folder (created if missing).
         progress: the retargeting's tqdm bar.
         retarget_max_nfev: Rosenbrock evaluations per retargeting step (None: the retargeting's default).
+        build: compute a cache miss (``False``: raise instead).
+        on_stage: called with one line before a cache miss is computed.
 
     Returns:
         The :class:`Strategy` with the cached file paths.
+
+    Raises:
+        InputError: a cache miss with ``build=False``.
     """
     from inference import VariationParams
     from planning.scene import load_scene
@@ -242,7 +269,7 @@ def prepare_strategy(
     from .scene_model import learn_in_scene
 
     cache = Path(cache_dir)
-    traj_path = prepare_trajectory(row, cache, progress, retarget_max_nfev)
+    traj_path = prepare_trajectory(row, cache, progress, retarget_max_nfev, build=build, on_stage=on_stage)
     scene = load_scene(row)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
@@ -253,7 +280,11 @@ def prepare_strategy(
     )
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
     if not model_path.is_file():
+        if not build:
+            raise _missing(f"the variation model of {row}", model_path)
         log.info("inferring the variation model of %s (cache miss) -> %s", row, model_path)
+        if on_stage:
+            on_stage(f"{row}: solving the variation model in its scene (T = {traj.num_steps})")
         model = learn_in_scene(traj, scene, params, cache / "fields")
         model.save(model_path)
     mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))

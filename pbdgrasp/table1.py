@@ -23,11 +23,10 @@ between processes). The coordinating process writes each finished trial to the S
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +40,7 @@ from .cache import Strategy, prepare_strategy
 from .paper import ROWS
 from .results_db import (
     TrialRecord,
+    check_params,
     finished_keys,
     insert_trial,
     load_trials,
@@ -49,7 +49,7 @@ from .results_db import (
     record_from_plan,
     source_commit,
 )
-from .workers import TrialProgress, dask_client
+from .workers import TrialProgress, check_scheduler, dask_client
 
 __all__ = [
     "Table1Config",
@@ -93,8 +93,8 @@ class Table1Config:
     beta: float = 0.05
     quality_threshold: float = 0.05
     seed: int = 0
-    db_path: Path = Path("results/table1.sqlite")
-    cache_dir: Path = Path("results/cache")
+    db_path: Path = Path("runs/table1/table1.sqlite")
+    cache_dir: Path = Path("runs/table1/cache")
     workers: int = field(default_factory=lambda: os.cpu_count() or 1)
     scheduler: str | None = None
     progress: bool | None = None
@@ -267,59 +267,76 @@ class RunSummary:
     records: list[TrialRecord]
 
 
-def _check_params(conn, tasks_params: dict[tuple[str, str], str]) -> None:
-    for (row, planner), pj in tasks_params.items():
-        stored = {
-            p for (p,) in conn.execute("SELECT DISTINCT params_json FROM trials WHERE row=? AND planner=?",
-                                       (row, planner))
-        }  # fmt: skip
-        other = stored - {pj}
-        if other:
-            a, b = json.loads(next(iter(other))), json.loads(pj)
-            diff = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-            raise InputError(
-                f"the database holds {row}/{planner} trials run with other parameters ({', '.join(diff)}); "
-                "use another --db, or the same settings to resume"
-            )
+_RESUME_HINT = "use --new to start a fresh database (the old one is kept), another --db, or the same settings"
 
 
-def run_table1(config: Table1Config, run_trials: bool = True) -> RunSummary:
+def _expected_params(config: Table1Config, strategies: dict[str, Strategy] | None) -> dict:
+    """Per (row, planner), the run's trial parameters (without strategies: with an empty model hash)."""
+    from planning.scene import load_scene
+
+    out = {}
+    for row in config.rows:
+        st = strategies[row] if strategies else Strategy(row, load_scene(row).strategy, Path(), Path(), "", 0)
+        for p in config.planners:
+            out[(row, p)] = params_json(trial_params(config, st, p))
+    return out
+
+
+def run_table1(
+    config: Table1Config, run_trials: bool = True, on_stage: Callable[[str], None] | None = None
+) -> RunSummary:
     """Compute the strategies, run the unfinished trials and store each one as it completes.
+
+    The database is opened and checked first (:func:`pbdgrasp.results_db.open_db`), and the stored
+    trials' settings are compared with the run's before the strategies are built, their models' hashes
+    after.
 
     Args:
         config: the run's settings.
-        run_trials: ``False`` only collects the stored trials (to report on a partial run).
+        run_trials: ``False`` builds nothing and runs nothing: it collects the stored trials of an existing
+            database and the cached strategies (to report on a run).
+        on_stage: called with one line per strategy step that is computed (cache misses) and per phase.
 
     Returns:
         A :class:`RunSummary`; the report is :func:`pbdgrasp.report.write_report`'s job.
 
     Raises:
-        InputError: the database holds trials of the requested rows run with other parameters.
+        InputError: the database is not a results database or is locked; it holds trials of the requested
+            rows run with other parameters; with ``run_trials=False``, the database or a strategy is
+            missing.
     """
     start = time.perf_counter()
-    strategies = {
-        row: prepare_strategy(row, config.cache_dir, config.progress, config.retarget_max_nfev)
-        for row in config.rows
-    }
-    strategy_time_s = time.perf_counter() - start
-    commit = source_commit()
-    conn = open_db(config.db_path)
+    say = on_stage or (lambda _line: None)
+    conn = open_db(config.db_path, create=run_trials)
     try:
-        _check_params(
-            conn,
-            {
-                (row, p): params_json(trial_params(config, strategies[row], p))
-                for row in config.rows
-                for p in config.planners
-            },
-        )
+        if run_trials and config.scheduler:
+            check_scheduler(config.scheduler)
+        check_params(conn, _expected_params(config, None), _RESUME_HINT, ignore=("model_sha256",))
+        say(f"strategies of {len(config.rows)} row(s) (cached in {config.cache_dir})")
+        strategies = {
+            row: prepare_strategy(
+                row,
+                config.cache_dir,
+                config.progress,
+                config.retarget_max_nfev,
+                build=run_trials,
+                on_stage=say,
+            )
+            for row in config.rows
+        }
+        strategy_time_s = time.perf_counter() - start
+        commit = source_commit()
+        check_params(conn, _expected_params(config, strategies), _RESUME_HINT)
         wanted = {(r, p, t) for r in config.rows for p in config.planners for t in range(config.trials)}
         done = finished_keys(conn) & wanted
         tasks = make_tasks(config, strategies, done, commit) if run_trials else []
         previous = [r for r in load_trials(conn, list(config.rows)) if r.key() in wanted]
-        progress = TrialProgress(config, len(wanted), len(done), previous)
         errors = 0
         workers = 0 if (config.workers == 0 and not config.scheduler) else config.workers
+        if tasks:
+            where = config.scheduler or (f"{workers} Dask worker(s)" if workers else "this process")
+            say(f"planning {len(tasks)} trials ({len(done)} already stored in {config.db_path}) on {where}")
+        progress = TrialProgress(config, len(wanted), len(done), previous)
         try:
             if tasks and workers == 0:
                 for task in tasks:

@@ -5,10 +5,19 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
+import signal
+
+from assets.errors import InputError
 
 from .results_db import TrialRecord
 
-__all__ = ["TrialProgress", "dask_client", "quiet_dask"]
+__all__ = ["TrialProgress", "dask_client", "check_scheduler", "quiet_dask", "CONNECT_TIMEOUT_S"]
+
+CONNECT_TIMEOUT_S = 10.0
+"""How long to wait for a Dask scheduler to answer, and then for it to have a worker [s]."""
+
+_ADDRESS = re.compile(r"^(tcp|tls|ws|wss|ucx)://[^\s/:]+:\d{1,5}$")
 
 
 class TrialProgress:
@@ -56,26 +65,80 @@ def quiet_dask() -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
+def _connect(address: str):
+    """A client of the scheduler at ``address`` that has at least one worker.
+
+    Raises:
+        InputError: a malformed address, no answer within :data:`CONNECT_TIMEOUT_S`, or no worker within
+            as long again.
+    """
+    from distributed import Client
+
+    if not _ADDRESS.match(address):
+        raise InputError(f"--scheduler: expected an address like tcp://HOST:PORT, found {address!r}")
+    quiet_dask()
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError) as exc:
+        raise InputError(
+            f"--scheduler: no Dask scheduler answered at {address} within {CONNECT_TIMEOUT_S:g} s "
+            f"({type(exc).__name__})"
+        ) from None
+    try:
+        client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError):
+        client.close()
+        raise InputError(
+            f"--scheduler: the Dask scheduler at {address} has no worker after {CONNECT_TIMEOUT_S:g} s; "
+            "start one with: dask worker " + address
+        ) from None
+    return client
+
+
+def check_scheduler(address: str) -> None:
+    """Raise :class:`InputError` unless the scheduler at ``address`` answers and has a worker (see
+    :func:`dask_client`); called before long work."""
+    _connect(address).close()
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Child processes started inside inherit an ignored SIGINT: Ctrl-C interrupts only this process,
+    which then shuts its workers down, instead of every worker printing its own traceback."""
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: nothing to do
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @contextlib.contextmanager
 def dask_client(config):
     """A Dask client for ``config`` (a :class:`~pbdgrasp.table1.Table1Config`): connected to
     ``config.scheduler``, or to an embedded ``LocalCluster`` of ``config.workers`` single-threaded worker
-    processes."""
+    processes (which ignore Ctrl-C; the coordinating process stops them).
+
+    Raises:
+        InputError: the scheduler cannot be reached or has no worker (:data:`CONNECT_TIMEOUT_S`).
+    """
     from distributed import Client, LocalCluster
 
     quiet_dask()
     if config.scheduler:
-        with Client(config.scheduler) as client:
+        with _connect(config.scheduler) as client:
             yield client
         return
-    with (
-        LocalCluster(
+    with _sigint_ignored():
+        cluster = LocalCluster(
             n_workers=config.workers,
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
             silence_logs=logging.WARNING,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+        )
+    with cluster, Client(cluster) as client:
         yield client
