@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -44,6 +45,7 @@ def solve(
     clearance: ClearanceFn | None = None,
     fingertip_map: FingertipMap | None = None,
     joint_limits: np.ndarray | None = None,
+    on_iteration: Callable[[float], None] | None = None,
 ) -> VariationModel:
     """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
 
@@ -57,6 +59,7 @@ def solve(
         joint_limits: (13, 2) lower and upper joint limits [rad] (the SAH's: ``assets.sah.JOINT_LIMITS``),
             held by expectation propagation (:mod:`inference.joint_limits`); None: none, and the means may
             leave the limits.
+        on_iteration: called after every optimizer iteration with the graph's error (progress reports).
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -80,12 +83,12 @@ def solve(
 
     values = initial_values(traj, mu_o, fixed_object=True)
     graph = graph_at()
-    values, iterations, converged = optimize(graph, values, params)
+    values, iterations, converged = optimize(graph, values, params, on_iteration=on_iteration)
     if sites:  # expectation propagation of the joint limits, each update followed by a warm-started solve
         for _ in range(params.joint_limit_max_iterations):
             change = sites.update(graph, values)
             graph = graph_at()
-            values, its, converged = optimize(graph, values, params, warm=True)
+            values, its, converged = optimize(graph, values, params, warm=True, on_iteration=on_iteration)
             iterations += its
             if change < params.joint_limit_tolerance:
                 break
@@ -116,7 +119,11 @@ def solve(
 
 
 def optimize(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, params: VariationParams, warm: bool = False
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    params: VariationParams,
+    warm: bool = False,
+    on_iteration: Callable[[float], None] | None = None,
 ) -> tuple[gtsam.Values, int, bool]:
     """GTSAM's Levenberg-Marquardt from ``values`` until the relative decrease of the error is below
     ``params.relative_error_tolerance`` (or the error is zero).
@@ -128,6 +135,7 @@ def optimize(
     Returns:
         The solution, the iterations taken and whether it converged within ``params.max_iterations``.
     """
+    report = on_iteration or (lambda _error: None)
     iterations = 0
     if warm:
         gn = gtsam.GaussNewtonOptimizer(graph, values, gtsam.GaussNewtonParams())
@@ -137,6 +145,7 @@ def optimize(
             gn.iterate()
             iterations += 1
             new_error = gn.error()
+            report(new_error)
             if not new_error <= error:  # an increase (or NaN): back to the last point
                 if new_error - error <= params.relative_error_tolerance * error:
                     return previous, iterations, True  # at the minimum, up to the tolerance
@@ -157,6 +166,7 @@ def optimize(
         optimizer.iterate()
         iterations += 1
         new_error = optimizer.error()
+        report(new_error)
         if gtsam.checkConvergence(params.relative_error_tolerance, 0.0, 0.0, error, new_error):
             return optimizer.values(), iterations, True
         error = new_error

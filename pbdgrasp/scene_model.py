@@ -13,6 +13,7 @@ the Table I runner and the bench build scene models through here.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 
 from assets.sah import JOINT_LIMITS, rest_joints
 from assets.sphere_cover import hand_sphere_cover
@@ -55,8 +56,10 @@ def learn_in_scene(
     scene: Scene,
     params: VariationParams | None = None,
     cache_dir: str | os.PathLike | None = None,
+    on_iteration: Callable[[float], None] | None = None,
 ) -> VariationModel:
-    """The variation model of ``traj`` in ``scene`` (module docstring)."""
+    """The variation model of ``traj`` in ``scene`` (module docstring); ``on_iteration`` as
+    :func:`inference.solve.solve`'s."""
     params = params or VariationParams()
     return solve(
         traj,
@@ -65,4 +68,5 @@ def learn_in_scene(
         cov_object=scene.cov_object,
         clearance=scene_clearance(scene, params, cache_dir),
         joint_limits=JOINT_LIMITS,
+        on_iteration=on_iteration,
     )

@@ -5,7 +5,8 @@ Each subcommand is a module of this package that defines ``NAME`` (the subcomman
 found automatically, so adding a subcommand touches no shared file.
 
 Errors: bad input (:class:`assets.errors.InputError`) prints one line ``error: ...`` and exits 2; so do
-argument errors. ``--debug`` shows the traceback instead.
+argument errors, which include every range check and output-path check of :mod:`pbdgrasp.cli._args`
+(made while parsing, before any work). ``--debug`` shows the traceback instead.
 """
 
 from __future__ import annotations
@@ -54,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``pbdgrasp`` console script; returns the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # an argument error (one line already printed) or --help
+        return exc.code if isinstance(exc.code, int) else 2
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
     )

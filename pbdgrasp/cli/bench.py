@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import sys
 
+from ._args import float_in, int_in, output_dir, output_file, seed
+
 NAME = "bench"
 HELP = "measure inference, sampling, collision, quality, retargeting and planning speed on this machine"
 ORDER = 90
@@ -16,14 +18,23 @@ ORDER = 90
 
 def add_arguments(p) -> None:
     p.add_argument("--quick", action="store_true", help="tiny settings (seconds): ham planning only")
-    p.add_argument("--trials", type=int, default=3, help="planning trials per scene and planner (default 3)")
-    p.add_argument("--time-limit-s", type=float, default=10.0, help="budget of one planning query [s]")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
-    p.add_argument("-o", "--output", metavar="BENCH.json", help="also write the JSON results here")
-    p.add_argument("--cache-dir", default="results/cache/bench", help="cached planning strategies")
     p.add_argument(
-        "--retarget-max-nfev", type=int, default=100, help="Rosenbrock evaluations per step (strategies)"
+        "--trials", type=int_in(1, 1000), default=3, help="planning trials per scene and planner (default 3)"
+    )
+    p.add_argument(
+        "--time-limit-s", type=float_in(0, 3600, "s", lo_open=True), default=10.0, help="budget of one query"
+    )
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
+    p.add_argument("-o", "--output", type=output_file(".json"), metavar="BENCH.json", help="also write JSON")
+    p.add_argument(
+        "--cache-dir", type=output_dir, default="results/cache/bench", help="cached strategies (%(default)s)"
+    )
+    p.add_argument(
+        "--retarget-max-nfev",
+        type=int_in(1, 100_000),
+        default=100,
+        help="Rosenbrock evaluations per step (strategies)",
     )
 
     p.add_argument(

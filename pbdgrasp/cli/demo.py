@@ -8,6 +8,8 @@ from pathlib import Path
 import assets
 from assets.errors import InputError
 
+from ._args import output_dir, seed
+
 NAME = "demo"
 HELP = "generate (regenerate) the human demonstrations: pbdgrasp demo generate --all"
 ORDER = 10
@@ -21,10 +23,11 @@ def add_arguments(p) -> None:
     which = g.add_mutually_exclusive_group(required=True)
     which.add_argument("--object", help="one demonstrated object")
     which.add_argument("--all", action="store_true", help="all demonstrated objects")
-    g.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
+    g.add_argument("--seed", type=seed, default=0, help="seed of the sensor noise (default 0)")
     g.add_argument(
         "-o",
         "--output",
+        type=output_dir,
         default=str(assets.ROOT / "demonstrations"),
         help="output directory (default: the shipped assets/demonstrations)",
     )

@@ -14,6 +14,9 @@ from assets.sah import JOINT_LIMITS
 from inference import VariationParams, solve
 from retarget.trajectory import Trajectory
 
+from ._args import output_file
+from ._out import stage, warn
+
 NAME = "infer"
 HELP = "learn the variation model (marginals P(X_t | O)) from a retargeted trajectory"
 ORDER = 40
@@ -23,20 +26,49 @@ def add_arguments(p) -> None:
     p.add_argument("trajectory", metavar="TRAJ", help="retargeted trajectory (.traj.npz)")
     p.add_argument("--scene", help="scene name or YAML file: object prior and constraint factors")
     p.add_argument("--params", metavar="P.yaml", help="parameter file (see inference/params.py)")
-    p.add_argument("-o", "--output", required=True, metavar="MODEL.model.npz", help="model file to write")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        type=output_file(".model.npz"),
+        metavar="MODEL.model.npz",
+        help="model file to write",
+    )
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
 def run(args) -> int:
+    from tqdm import tqdm
+
     start = time.perf_counter()
     traj = Trajectory.load(args.trajectory)
     params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
+    scene = None
     if args.scene:
-        from pbdgrasp.scene_model import learn_in_scene
         from planning.scene import load_scene
 
-        model = learn_in_scene(traj, load_scene(args.scene), params)
-    else:
-        model = solve(traj, params, joint_limits=JOINT_LIMITS)
+        scene = load_scene(args.scene)
+        if scene.object.name != traj.object:
+            warn(
+                f"{args.trajectory} is a strategy for {traj.object!r}; the scene holds {scene.object.name!r}"
+            )
+    bar = tqdm(desc="solving the variation model", unit="it", disable=args.no_progress or None, leave=False)
+
+    def tick(error: float) -> None:
+        bar.update(1)
+        bar.set_postfix(error=f"{error:.4g}")
+
+    try:
+        if scene is not None:
+            from pbdgrasp.scene_model import learn_in_scene
+
+            quiet = False if args.no_progress else None
+            stage(f"scene {scene.name}: distance fields and the clearance factors", enabled=quiet)
+            model = learn_in_scene(traj, scene, params, on_iteration=tick)
+        else:
+            model = solve(traj, params, joint_limits=JOINT_LIMITS, on_iteration=tick)
+    finally:
+        bar.close()
     model.save(args.output)
     status = "converged" if model.converged else "NOT converged"
     print(

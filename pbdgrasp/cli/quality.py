@@ -10,6 +10,9 @@ import numpy as np
 from assets.errors import InputError
 from assets.q_layout import JOINTS
 
+from ._args import float_in, int_in, output_file
+from ._out import warn
+
 NAME = "quality"
 HELP = "close the hand at Q.json until contact, print epsilon (L1), the contacts and the closed q"
 ORDER = 30
@@ -18,12 +21,25 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--scene", required=True, help="scene name (pbdgrasp assets) or path to a scene YAML")
-    p.add_argument("--q", required=True, help="hand configuration Q.json ({'q': [19 numbers]} or named)")
-    p.add_argument("--step-deg", type=float, default=2.0, help="closing step per joint [deg] (default 2)")
+    p.add_argument(
+        "--scene", help="scene name or YAML (with --from-db default: the trial's scene, the database row)"
+    )
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--q", help="hand configuration Q.json ({'q': [19 numbers]} or named)")
+    which.add_argument(
+        "--from-db", metavar="RESULTS.sqlite", help="a trial's stored grasp (with --trial; see plan -o)"
+    )
+    p.add_argument("--trial", type=int_in(0, 10_000), help="with --from-db: the trial number")
+    p.add_argument("--row", help="with --from-db: the database row (scene) when it holds several")
+    p.add_argument("--planner", help="with --from-db: the planner when the row holds several")
+    p.add_argument(
+        "--step-deg", type=float_in(0.05, 20.0, "deg"), default=2.0, help="closing step per joint (default 2)"
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--view", choices=["side", "top", "both"], default="both")
-    p.add_argument("-o", "--output", help="render the closed grasp to this PNG")
+    p.add_argument(
+        "-o", "--output", type=output_file(".png"), metavar="OUT.png", help="render the closed grasp"
+    )
 
 
 def run(args) -> int:
@@ -34,12 +50,15 @@ def run(args) -> int:
     from planning.qfile import load_q
     from planning.world import World
 
-    if not (0.05 <= args.step_deg <= 20.0):
-        raise InputError(f"--step-deg: expected 0.05..20 deg, found {args.step_deg}")
     step = np.deg2rad(args.step_deg)
     config = AutoGraspConfig(step_rad=step, min_step_rad=min(step, np.deg2rad(0.125)))
-    with World(args.scene, hand="sah") as world:
-        q = load_q(args.q, hand="sah")
+    if args.from_db:
+        scene, q = _stored_q(args)
+    else:
+        if args.scene is None:
+            raise InputError("--scene: expected a scene (required with --q)")
+        scene, q = args.scene, load_q(args.q, hand="sah")
+    with World(scene, hand="sah") as world:
         res = HandCloser(world, config).close(q)
         if args.json:
             print(json.dumps(_as_dict(res, sah.JOINT_NAMES), indent=2))
@@ -51,6 +70,39 @@ def run(args) -> int:
             atomic_write(args.output, lambda f: f.write(png_bytes(image)))
             log.info("wrote %s", args.output)
     return 0
+
+
+def _stored_q(args) -> tuple[str, np.ndarray]:
+    """The scene and the pre-closing q of a stored trial (``--from-db``, ``--trial``, ``--row``,
+    ``--planner``)."""
+    from pbdgrasp.results_db import load_trials, open_db
+    from planning.qfile import q_from_dict
+
+    if args.trial is None:
+        raise InputError("--from-db: expected --trial N as well")
+    conn = open_db(args.from_db, create=False)
+    try:
+        records = [r for r in load_trials(conn) if r.trial == args.trial]
+    finally:
+        conn.close()
+    for attr in ("row", "planner"):
+        wanted = getattr(args, attr)
+        if wanted is not None:
+            records = [r for r in records if getattr(r, attr) == wanted]
+        choices = sorted({getattr(r, attr) for r in records})
+        if len(choices) > 1:
+            raise InputError(f"trial {args.trial} is stored for several {attr}s ({', '.join(choices)}); "
+                             f"choose one with --{attr}", args.from_db)  # fmt: skip
+    if not records:
+        raise InputError(f"no trial {args.trial} of these settings is stored", args.from_db)
+    rec = records[0]
+    grasp = json.loads(rec.grasp_json)
+    q = grasp.get("q", grasp.get("closed_q"))
+    if q is None:
+        raise InputError(f"trial {args.trial} ({rec.row}, {rec.planner}) stored no grasp", args.from_db)
+    if "q" not in grasp:
+        warn(f"trial {args.trial} was not solved: closing its best closed grasp again")
+    return args.scene or rec.row, q_from_dict({"q": q}, "sah", args.from_db)
 
 
 def _as_dict(res, joint_names) -> dict:

@@ -11,6 +11,8 @@ from assets.errors import InputError
 from assets.io import atomic_write
 from assets.q_layout import POS, ROT
 
+from ._args import int_in, output_file
+
 NAME = "render"
 HELP = "render a scene with the hand at a configuration to a PNG"
 ORDER = 20
@@ -23,9 +25,9 @@ def add_arguments(p) -> None:
     p.add_argument("--q", help="hand configuration Q.json (default: open hand hovering above the object)")
     p.add_argument("--hand", default="sah", help="hand model (default sah)")
     p.add_argument("--view", choices=["side", "top", "both"], default="side")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--height", type=int, default=480)
-    p.add_argument("-o", "--output", required=True, help="output PNG")
+    p.add_argument("--width", type=int_in(16, 4096, "pixels"), default=640, help="pixels (default 640)")
+    p.add_argument("--height", type=int_in(16, 4096, "pixels"), default=480, help="pixels (default 480)")
+    p.add_argument("-o", "--output", required=True, type=output_file(".png"), metavar="OUT.png")
     p.add_argument(
         "--demo", help="show a human demonstration (name or .npz) on its object; implies --hand human"
     )
@@ -79,8 +81,6 @@ def run(args) -> int:
     from planning.qfile import load_q
     from planning.world import World
 
-    if args.width < 16 or args.height < 16 or args.width > 4096 or args.height > 4096:
-        raise InputError(f"--width/--height: expected 16..4096 pixels, found {args.width} x {args.height}")
     if args.demo:
         return _run_demo(args)
     with World(args.scene, hand=args.hand) as world:

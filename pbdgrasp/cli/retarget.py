@@ -13,6 +13,8 @@ from pathlib import Path
 from assets.errors import InputError
 from retarget.config import TARGETS
 
+from ._args import int_in, output_file, seed
+
 NAME = "retarget"
 HELP = "retarget a human demonstration to the SAH: write tau_r and Sigma_r(t) (.traj.npz)"
 ORDER = 30
@@ -22,13 +24,22 @@ log = logging.getLogger(__name__)
 
 def add_arguments(p) -> None:
     p.add_argument("demo", metavar="DEMO", help="demonstration name (ham, jam, ...) or path to a .npz file")
-    p.add_argument("-o", "--output", required=True, metavar="TRAJ", help="output file (.traj.npz)")
     p.add_argument(
-        "--seed", type=int, default=0, help="recorded for provenance (retargeting is deterministic)"
+        "-o",
+        "--output",
+        required=True,
+        type=output_file(".traj.npz"),
+        metavar="TRAJ",
+        help="output .traj.npz",
+    )
+    p.add_argument(
+        "--seed", type=seed, default=0, help="recorded for provenance (retargeting is deterministic)"
     )
     p.add_argument("--scene", help="scene for the collision check (default: the scene named like the object)")
     p.add_argument("--no-collision", action="store_true", help="drop d6 (no collision check; faster)")
-    p.add_argument("--max-nfev", type=int, default=None, help="Rosenbrock evaluations per step")
+    p.add_argument(
+        "--max-nfev", type=int_in(1, 100_000), default=None, help="Rosenbrock evaluations per step"
+    )
     p.add_argument(
         "--targets",
         choices=TARGETS,
@@ -46,10 +57,6 @@ def run(args) -> int:
     from retarget.retargeting import RetargetConfig
 
     out = Path(args.output)
-    if not out.name.endswith(".traj.npz"):
-        raise InputError(f"output: expected a file name ending in .traj.npz, found {out.name!r}")
-    if args.max_nfev is not None and args.max_nfev < 1:
-        raise InputError(f"--max-nfev: expected a positive number, found {args.max_nfev}")
     demo = Demonstration.load(args.demo)
     settings = {"targets": args.targets}
     if args.max_nfev is not None:
