@@ -15,7 +15,13 @@ from assets import human_hand, sah
 from assets.errors import InputError
 from assets.q_layout import JOINT_NAMES
 
-__all__ = ["default_excluded_pairs", "hand_joint_names", "hand_rest_joints", "urdf_joints"]
+__all__ = [
+    "default_excluded_pairs",
+    "hand_joint_limits",
+    "hand_joint_names",
+    "hand_rest_joints",
+    "urdf_joints",
+]
 
 
 def urdf_joints(urdf: Path) -> tuple[list[str], dict[str, tuple[str, float, float]]]:
@@ -55,6 +61,13 @@ def hand_rest_joints(hand: str) -> np.ndarray:
         lo, hi = limits.get(name, (0.0, 0.0))
         out.append(float(np.clip(0.0, lo, hi)) if hi > lo else 0.0)
     return np.array(out)
+
+
+def hand_joint_limits(hand: str) -> np.ndarray:
+    """(n, 2) lower and upper limits [rad] of a hand's joints in :func:`hand_joint_names` order, from its
+    URDF (a joint without limits: infinite)."""
+    _, _, limits = _urdf_joint_table(assets.hand_urdf(hand))
+    return np.array([limits.get(n, (-np.inf, np.inf)) for n in hand_joint_names(hand)], dtype=float)
 
 
 def hand_joint_names(hand: str) -> list[str]:

@@ -8,6 +8,10 @@ Two forms are accepted:
   "joints_deg": {"index_prox": 30, ...}}``: joints in degrees by name, missing joints at the rest pose
   (:func:`planning.hand_urdf.hand_rest_joints`).
 
+Ranges: the wrist within :data:`MAX_WRIST_DISTANCE_M` of the world origin (every scene's table and
+object are near it), a rotation vector of norm at most 2 pi, every joint within its URDF limits (to
+:data:`LIMIT_TOLERANCE_RAD`).
+
 :func:`save_q` writes either form atomically.
 """
 
@@ -25,7 +29,11 @@ from assets.q_layout import JOINTS, POS, ROT
 
 from .hand_urdf import hand_joint_names, hand_rest_joints
 
-__all__ = ["load_q", "save_q", "q_from_dict", "q_to_dict"]
+__all__ = ["load_q", "save_q", "q_from_dict", "q_to_dict", "MAX_WRIST_DISTANCE_M", "LIMIT_TOLERANCE_RAD"]
+
+MAX_WRIST_DISTANCE_M = 2.0
+LIMIT_TOLERANCE_RAD = 1e-6
+MAX_FILE_BYTES = 1 << 20
 
 
 def _vector(value, field: str, n: int, path) -> np.ndarray:
@@ -42,8 +50,42 @@ def q_from_dict(d, hand: str = "sah", path=None) -> np.ndarray:
 
     Raises:
         InputError: wrong shape or type, a non-finite value, an unknown joint name (the valid ones are
-            listed) or a mix of both forms.
+            listed), a mix of both forms, or a value out of range (module docstring).
     """
+    q = _parse(d, hand, path)
+    _check_ranges(q, hand, path)
+    return q
+
+
+def _check_ranges(q: np.ndarray, hand: str, path) -> None:
+    from .hand_urdf import hand_joint_limits
+
+    distance = math.hypot(*q[POS])  # no overflow for huge entries
+    if distance > MAX_WRIST_DISTANCE_M:
+        raise InputError(
+            f"wrist position: {distance:.3g} m from the world origin; expected at most "
+            f"{MAX_WRIST_DISTANCE_M:g} m (positions are in metres)",
+            path,
+        )
+    angle = math.hypot(*q[ROT])
+    if angle > 2 * math.pi + 1e-9:
+        raise InputError(f"wrist rotation vector: norm {angle:.3g} rad; expected at most 2 pi rad", path)
+    limits = hand_joint_limits(hand)
+    joints = q[JOINTS]
+    bad = np.flatnonzero(
+        (joints < limits[:, 0] - LIMIT_TOLERANCE_RAD) | (joints > limits[:, 1] + LIMIT_TOLERANCE_RAD)
+    )
+    if bad.size:
+        i = int(bad[0])
+        name = hand_joint_names(hand)[i]
+        raise InputError(
+            f"joint {name}: {math.degrees(joints[i]):.4g} deg outside its limits "
+            f"[{math.degrees(limits[i, 0]):.4g}, {math.degrees(limits[i, 1]):.4g}] deg",
+            path,
+        )
+
+
+def _parse(d, hand: str, path) -> np.ndarray:
     names = hand_joint_names(hand)
     if not isinstance(d, dict):
         raise InputError(f"expected a JSON object, found {type(d).__name__}", path)
@@ -103,10 +145,16 @@ def load_q(path: str | Path, hand: str = "sah") -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError("no such configuration file", path)
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise InputError(
+            f"{path.stat().st_size} bytes; a configuration file is at most {MAX_FILE_BYTES}", path
+        )
     try:
         d = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"not valid JSON ({exc})", path) from None
+    except RecursionError:
+        raise InputError("not a configuration: JSON nested too deeply", path) from None
     return q_from_dict(d, hand, path)
 
 

@@ -28,6 +28,7 @@ from ._pybullet import connect_direct, pb
 from .camera import default_camera, render_image
 from .hand_urdf import default_excluded_pairs, hand_joint_names, hand_rest_joints, urdf_joints
 from .scene import Scene, load_scene
+from .scene_checks import check_placement
 
 __all__ = ["Contact", "World"]
 
@@ -112,6 +113,7 @@ class World:
             ids.append(self._load_obstacle(ob))
             self._names[ids[-1]] = ob.label
         self.obstacle_ids = tuple(ids)
+        check_placement(self)
 
         urdf = assets.hand_urdf(self.hand)
         flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
@@ -182,7 +184,14 @@ class World:
                 pb.GEOM_CYLINDER, radius=ob.radius_m, length=ob.height_m, rgbaColor=rgba, physicsClientId=c
             )
         else:
-            scale = [ob.scale] * 3
+            return self._load_mesh_obstacle(ob, pos, quat, rgba)
+        if col < 0:
+            raise InputError(f"obstacle {ob.label}: pybullet could not build its shape")
+        return pb.createMultiBody(0.0, col, vis, pos, quat, physicsClientId=c)
+
+    def _load_mesh_obstacle(self, ob, pos, quat, rgba) -> int:
+        c, scale = self.client, [ob.scale] * 3
+        try:
             if ob.collision_file is not None:  # convex pieces, one OBJ object each: a solid compound
                 col = pb.createCollisionShape(
                     pb.GEOM_MESH, fileName=str(ob.collision_file), meshScale=scale, physicsClientId=c
@@ -198,8 +207,12 @@ class World:
             vis = pb.createVisualShape(
                 pb.GEOM_MESH, fileName=str(ob.file), meshScale=scale, rgbaColor=rgba, physicsClientId=c
             )
-        if col < 0:
-            raise InputError(f"obstacle {ob.label}: pybullet could not build its shape")
+        except pb.error:
+            raise InputError(
+                f"obstacles: {ob.label}: {ob.file.name} (or its collision file) is not a mesh pybullet can "
+                "read (OBJ, STL or DAE)",
+                self.scene.path,
+            ) from None
         return pb.createMultiBody(0.0, col, vis, pos, quat, physicsClientId=c)
 
     # --------------------------------------------------------------------------------------------

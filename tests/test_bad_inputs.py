@@ -41,16 +41,17 @@ def _argv(kind: str, path: Path, tmp: Path) -> list[str]:
         "scene": ["render", "--scene", str(path), "-o", str(tmp / "out.png")],
         "params": ["infer", str(GOOD_TRAJ), "--params", str(path), "-o", str(tmp / "out.model.npz")],
         "q": ["quality", "--scene", "ham", "--q", str(path)],
+        "db": ["quality", "--from-db", str(path), "--trial", "0"],
     }[kind]
 
 
 def test_the_corpus_covers_every_file_the_cli_reads():
     kinds = {entry["kind"] for entry in MANIFEST.values()}
-    assert kinds == {"demo", "traj", "model", "scene", "params", "q"}
+    assert kinds == {"demo", "traj", "model", "scene", "params", "q", "db"}
     on_disk = {
         str(p.relative_to(BAD))
         for p in BAD.rglob("*")
-        if p.is_file() and p.parent != BAD and p.parent.name != "good"
+        if p.is_file() and p.parent != BAD and p.parent.name not in ("good", "meshes")
     }
     assert on_disk == set(MANIFEST)
 
