@@ -1,9 +1,9 @@
-"""A real demonstration from hand keypoints: fit the human hand model to 21 points a frame.
+"""The keypoint fitter: the human hand model's wrist pose and 20 joints from 21 hand points a frame.
 
-The points and their file are :mod:`retarget.keypoints`. Steps (:func:`import_keypoints`):
+The points, their order and their file are :mod:`retarget.keypoints`; :mod:`retarget.keypoint_import`
+turns a file into a demonstration with this fit. Steps:
 
-1. **Load and resample** the file (:func:`~retarget.keypoints.load_keypoints`) to the demonstration's
-   rate, linearly.
+1. **Checks** that the points are a right hand's in metres, in the 21-point order (below).
 2. **Calibrate** the hand over all frames (:func:`calibrate_hand`): a scale from the six palm points
    (wrist, thumb CMC, four MCPs; Procrustes with one scale for all frames), then each of the 15 finger
    segments' length from the distance of its two end points, corrected for the noise's bias and shrunk
@@ -15,8 +15,8 @@ The points and their file are :mod:`retarget.keypoints`. Steps (:func:`import_ke
    differences (accelerations) of the joints, the wrist position and the wrist rotation matrix over
    :class:`KeypointFitConfig`'s prior accelerations; sparse analytic Jacobian. Noise-free points give a
    sigma near 0, so the smoothness then leaves the exact fit alone.
-5. **Demonstration**: the fitted motion, the measured residuals as its noise model, the calibration
-   under the header's ``hand``.
+5. **Result** (:class:`KeypointFit`): the motion, the per-frame residuals, the measured noise and the
+   standard deviations a single frame's fit would have.
 
 The wrist is ``T_object_wrist``, rotations perturbed on the right, ``R = R_ref @ Exp(omega)``. The hand is
 the demonstrator's (the scaled model): the file holds its wrist and joints, as glove and tracker would.
@@ -24,23 +24,19 @@ the demonstrator's (the scaled model): the file holds its wrist and joints, as g
 
 from __future__ import annotations
 
-import logging
 import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass, fields
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-import assets
 from assets import human_hand
 from assets.errors import InputError
 from assets.kinematics import HandModel
 from assets.se3 import make_pose, se3_inverse, skew, so3_exp
 
-from .demonstration import GRASP_TYPES, RATE_HZ, Demonstration, default_object_prior
 from .keypoints import (
     KEYPOINT_LINKS,
     KEYPOINT_NAMES,
@@ -48,7 +44,6 @@ from .keypoints import (
     PALM_POINTS,
     SEGMENTS,
     hand_keypoints,
-    load_keypoints,
     scaled_model,
     segment_vectors,
     transform_points,
@@ -60,18 +55,18 @@ __all__ = [
     "KeypointFit",
     "calibrate_hand",
     "fit_keypoints",
-    "import_keypoints",
     "SCALE_RANGE",
     "MAX_KEYPOINT_SIGMA_M",
 ]
 
-log = logging.getLogger(__name__)
-
 #: A hand whose palm is outside these multiples of the model's is not in metres (or not a hand).
 SCALE_RANGE = (0.5, 2.0)
-#: A fit worse than this (per axis) means a wrong point order, a left hand or not a hand [m].
-MAX_KEYPOINT_SIGMA_M = 0.02
+#: A fit worse than this (per axis) means a wrong point order or not a hand [m] (tracker noise: 2-10 mm).
+MAX_KEYPOINT_SIGMA_M = 0.015
 _N = 26  # parameters a frame: omega (3), p (3), joints (20)
+_FLEXIONS = [
+    i for f in human_hand.FINGERS[1:] for i in human_hand.FINGER_JOINTS[f][1:]
+]  # the 12 of the fingers
 
 
 @dataclass(frozen=True)
@@ -123,7 +118,8 @@ def calibrate_hand(p_object: np.ndarray, length_prior_rel_sigma: float = 0.1, pa
     ``sqrt(var(d) / T)``, combined with the prior ``N(s l_model, (length_prior_rel_sigma s l_model)^2)``.
 
     Raises:
-        InputError: the scale is outside :data:`SCALE_RANGE` (millimetres, or not a hand).
+        InputError: the scale is outside :data:`SCALE_RANGE` (millimetres, or not a hand), or the palm
+            points are not rigid to :data:`MAX_KEYPOINT_SIGMA_M` (another point order).
     """
     R, Y, P = _palm_alignment(p_object)
     s = float(np.einsum("tki,tij,kj->", Y, R, P) / (len(Y) * np.sum(P * P)))
@@ -131,6 +127,14 @@ def calibrate_hand(p_object: np.ndarray, length_prior_rel_sigma: float = 0.1, pa
         raise InputError(
             f"keypoints: the palm is {s:.4g} times the model's (expected {SCALE_RANGE[0]} to "
             f"{SCALE_RANGE[1]}): points must be in metres (millimetres?), in the 21-point order",
+            path,
+        )
+    palm_sigma = np.sqrt(np.sum((Y - s * np.einsum("tij,kj->tki", R, P)) ** 2) / (len(Y) * 12))
+    if palm_sigma > MAX_KEYPOINT_SIGMA_M:
+        raise InputError(
+            f"keypoints: points 0, 1, 5, 9, 13, 17 fit the model's palm (wrist, thumb CMC, MCPs) to "
+            f"{palm_sigma * 1e3:.1f} mm per axis, more than {MAX_KEYPOINT_SIGMA_M * 1e3:.0f} mm: expected "
+            f"the 21 points in the order {', '.join(KEYPOINT_NAMES)}",
             path,
         )
     d = np.linalg.norm(segment_vectors(p_object), axis=-1)
@@ -168,11 +172,10 @@ class KeypointFitConfig:
     ftol: float = 1e-6
 
     def __post_init__(self):
-        for name in ("joint_accel_sigma_rad_s2", "wrist_accel_sigma_m_s2", "rotation_accel_sigma_s2",
-                     "min_keypoint_sigma_m", "length_prior_rel_sigma", "max_nfev", "ftol"):  # fmt: skip
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"{name}: expected a finite number > 0, found {v!r}")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (np.isfinite(v) and v > 0):
+                raise InputError(f"{f.name}: expected a finite number > 0, found {v!r}")
 
 
 @dataclass(frozen=True)
@@ -207,7 +210,7 @@ class KeypointFit:
 
 
 def _initial_joints(k_wrist: np.ndarray) -> np.ndarray:
-    """Joints (T, 20) read off points (T, 21, 3) in the wrist frame, within limits: each finger's first
+    """Joints (T, 20) read off points (T, 21, 3) in the wrist frame, not clipped: each finger's first
     segment in its knuckle frame gives the abduction (about -x) and first flexion (about y), each next
     segment's angle to the previous about that y the next flexion. Exact for the model's own points."""
     base = human_hand.model()
@@ -225,7 +228,7 @@ def _initial_joints(k_wrist: np.ndarray) -> np.ndarray:
             a, c = seg[..., i - 1, :], seg[..., i, :]
             angles.append(np.arctan2(np.sum(np.cross(a, c) * y_axis, -1), np.sum(a * c, -1)))
         q[..., list(human_hand.FINGER_JOINTS[f])] = np.stack(angles, axis=-1)
-    return np.clip(q, human_hand.JOINT_LIMITS[:, 0], human_hand.JOINT_LIMITS[:, 1])
+    return q
 
 
 def _right_jacobian(omega: np.ndarray) -> np.ndarray:
@@ -259,10 +262,10 @@ def _keypoint_terms(
     return r, R, J
 
 
-def _fit(model, y, R_ref, x0, sigma_m: float, dt_s: float, cfg: KeypointFitConfig, smooth: bool):
-    """One ``least_squares`` over all frames x (T, 26): keypoint residuals / sigma_m and, if ``smooth``,
-    the second differences of the joints and the wrist position (linear) and of the rotation matrices,
-    each over its prior acceleration times dt^2; joints bounded by ``JOINT_LIMITS``."""
+def _problem(model, y, R_ref, sigma_m: float, dt_s: float, cfg: KeypointFitConfig, smooth: bool):
+    """The residuals ``fun(v)`` and their sparse Jacobian ``jac(v)`` of all frames v = x.ravel(), x (T, 26):
+    keypoint residuals / sigma_m and, if ``smooth``, the second differences of the joints and the wrist
+    position (linear) and of the rotation matrices, each over its prior acceleration times dt^2."""
     n = len(y)
     n_kp, m = n * 63, max(n - 2, 0) if smooth else 0
     idx = np.r_[6:_N, 3:6]  # joints and position: linear terms
@@ -306,6 +309,13 @@ def _fit(model, y, R_ref, x0, sigma_m: float, dt_s: float, cfg: KeypointFitConfi
             (np.concatenate([J.ravel() / sigma_m, lin_vals, rot.ravel()]), (rows, cols)), shape
         )
 
+    return fun, jac
+
+
+def _fit(model, y, R_ref, x0, sigma_m: float, dt_s: float, cfg: KeypointFitConfig, smooth: bool):
+    """:func:`_problem` solved by ``least_squares`` from x0 (T, 26), joints bounded by ``JOINT_LIMITS``."""
+    fun, jac = _problem(model, y, R_ref, sigma_m, dt_s, cfg, smooth)
+    n = len(y)
     lo = np.tile(np.r_[np.full(6, -np.inf), human_hand.JOINT_LIMITS[:, 0]], n)
     hi = np.tile(np.r_[np.full(6, np.inf), human_hand.JOINT_LIMITS[:, 1]], n)
     return least_squares(
@@ -321,8 +331,9 @@ def fit_keypoints(
     ``rate_hz``: calibration, per-frame fit, smoothed fit (the module docstring's steps 2-4).
 
     Raises:
-        InputError: the hand's scale is implausible, or the model cannot explain the points (a per-axis
-            noise over :data:`MAX_KEYPOINT_SIGMA_M`: a wrong point order, a left hand).
+        InputError: the hand's scale is implausible, a left hand (the fingers read off the points bend
+            backwards beyond the limits on average), or the model cannot explain the points (palm or fit
+            residual over :data:`MAX_KEYPOINT_SIGMA_M` per axis: a wrong point order).
     """
     start = time.perf_counter()
     cfg = config or KeypointFitConfig()
@@ -332,7 +343,17 @@ def fit_keypoints(
     model = cal.model()
     R_ref = _palm_alignment(y)[0]
     k_wrist = transform_points(se3_inverse(make_pose(R_ref, y[:, 0])), y)
-    x0 = np.concatenate([np.zeros((n, 3)), y[:, 0], _initial_joints(k_wrist)], axis=1)
+    q0 = _initial_joints(k_wrist)
+    bend = float(np.mean(q0[:, _FLEXIONS]))
+    if bend < human_hand.JOINT_LIMITS[_FLEXIONS, 0].max():
+        raise InputError(
+            f"keypoints: the fingers bend backwards by {np.degrees(-bend):.0f} deg on average, beyond the "
+            "model's hyperextension limit: a left hand (the model is a right one), or the fingers in "
+            "reverse order?",
+            path,
+        )
+    q0 = np.clip(q0, human_hand.JOINT_LIMITS[:, 0], human_hand.JOINT_LIMITS[:, 1])
+    x0 = np.concatenate([np.zeros((n, 3)), y[:, 0], q0], axis=1)
     res = _fit(model, y, R_ref, x0, 1.0, 1.0 / rate_hz, cfg, smooth=False)
     nfev = res.nfev
     sigma = float(np.sqrt(2.0 * res.cost / (n * (63 - _N))))
@@ -365,71 +386,3 @@ def fit_keypoints(
         nfev=int(nfev + res.nfev),
         time_s=time.perf_counter() - start,
     )
-
-
-def import_keypoints(
-    path: str | Path,
-    object_name: str,
-    grasp_type: str | None = None,
-    rate_hz: float = RATE_HZ,
-    config: KeypointFitConfig | None = None,
-) -> tuple[Demonstration, KeypointFit]:
-    """A keypoint file to a :class:`~retarget.demonstration.Demonstration` of ``object_name`` at ``rate_hz``.
-
-    Args:
-        path: the ``.npz`` keypoint file (:func:`load_keypoints`).
-        object_name: the grasped object, one of ``assets.objects()``.
-        grasp_type: ``"precision"`` or ``"power"``; default the object's (``object.yaml``).
-        rate_hz: the demonstration's rate; the points are resampled to it (linear interpolation).
-        config: the fit's settings.
-
-    Returns:
-        The demonstration (object prior :func:`default_object_prior`, no noise-free keys, the measured
-        noise under ``noise`` and the hand under ``hand``) and the fit.
-
-    Raises:
-        InputError: a bad file, object, grasp type or rate, or a fit that cannot explain the points.
-    """
-    if object_name not in assets.objects():
-        raise InputError(
-            f"--object: unknown object {object_name!r}; valid names: {', '.join(assets.objects())}"
-        )
-    grasp_type = grasp_type or assets.object_metadata(object_name)["grasp_type"]
-    if grasp_type not in GRASP_TYPES:
-        raise InputError(f"--grasp-type: expected one of {GRASP_TYPES}, found {grasp_type!r}")
-    if not (np.isfinite(rate_hz) and rate_hz > 0):
-        raise InputError(f"--rate-hz: expected a positive number of Hz, found {rate_hz}")
-    rec = load_keypoints(path)
-    y = rec.resampled(rate_hz)
-    if len(y) < 2:
-        raise InputError(f"keypoints: {rec.t_s[-1]:.3g} s is shorter than one step at {rate_hz} Hz", path)
-    fit = fit_keypoints(y, rate_hz, config, path)
-    if not fit.success:
-        log.warning("%s: the smoothed fit did not converge: %s", path, fit.message)
-    mu, cov = default_object_prior()
-    noise = {
-        "model": "measured: residuals of the hand model fitted to 21 keypoints (retarget/keypoint_fit.py)",
-        "keypoint_sigma_m": fit.sigma_m,
-        "keypoint_residual_rms_m": np.round(fit.residual_rms_m, 7).tolist(),
-        "keypoint_residual_max_m": np.round(fit.residual_max_m, 7).tolist(),
-        "residuals": "per frame of the smoothed fit: RMS over the 63 coordinates, largest point distance",
-        "tracker_position_sigma_m": float(np.mean(fit.frame_std["position_m"])),
-        "tracker_rotation_sigma_rad": float(np.mean(fit.frame_std["rotation_rad"])),
-        "glove_sigma_rad": float(np.mean(fit.frame_std["joints_rad"])),
-        "sigmas": "of one frame's fit before smoothing (keypoint_sigma_m propagated), medians over frames",
-        "smoothness": {k: v for k, v in asdict(config or KeypointFitConfig()).items() if "accel" in k},
-    }
-    demo = Demonstration(
-        T_object_wrist=fit.T_object_wrist,
-        joints=fit.joints,
-        t_s=np.arange(len(y)) / rate_hz,
-        object=object_name,
-        grasp_type=grasp_type,
-        T_world_object_mean=mu,
-        cov_object=cov,
-        rate_hz=rate_hz,
-        strategy=f"imported from the keypoints {Path(path).name} ({rec.rate_hz:g} Hz, {len(rec.t_s)} frames)",
-        noise=noise,
-        hand={**fit.calibration.header(), "fit_nfev": fit.nfev, "fit_converged": fit.success},
-    )
-    return demo, fit
