@@ -19,7 +19,8 @@ key                        shape         meaning
 The header holds: ``format``, ``version``, ``object``, ``grasp_type`` (precision | power), ``rate_hz``,
 ``joint_names``, ``frames``, ``units``, ``object_prior`` (``T_world_object_mean`` 4x4 and ``cov_object``
 6x6 in GTSAM Pose3 tangent ``[omega (rad), v (m)]`` body coordinates), ``contact_fingers``, ``strategy``,
-``noise`` and ``seed``.
+``noise``, ``seed`` and, optionally, ``hand`` (the demonstrator's hand as fitted by
+:mod:`retarget.keypoints`: scale and segment lengths).
 """
 
 from __future__ import annotations
@@ -131,6 +132,9 @@ class Demonstration:
         strategy: one line describing the grasping strategy.
         noise: the noise model (free-form mapping, documented in the README).
         seed: the generator's seed, if any.
+        hand: the demonstrator's hand, when it is not the model's (free-form mapping; an imported
+            demonstration's scale and segment lengths, see :mod:`retarget.keypoints`); empty for the
+            synthetic demonstrations, whose hand is the model.
         path: the file it was loaded from, if any.
     """
 
@@ -148,6 +152,7 @@ class Demonstration:
     strategy: str = ""
     noise: dict = field(default_factory=dict)
     seed: int | None = None
+    hand: dict = field(default_factory=dict)
     path: str | None = None
 
     def __post_init__(self):
@@ -198,6 +203,8 @@ class Demonstration:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "rate_hz", rate)
         object.__setattr__(self, "contact_fingers", tuple(self.contact_fingers))
+        if not isinstance(self.hand, dict):
+            raise InputError(f"hand: expected a mapping, found {self.hand!r}", p)
 
     @property
     def num_steps(self) -> int:
@@ -271,6 +278,7 @@ class Demonstration:
             "strategy": self.strategy,
             "noise": self.noise,
             "seed": self.seed,
+            **({"hand": self.hand} if self.hand else {}),
         }
 
     def save(self, path: str | os.PathLike) -> Path:
@@ -332,6 +340,9 @@ class Demonstration:
         noise = h.get("noise") or {}
         if not isinstance(noise, dict):
             raise InputError(f"header_yaml: noise: expected a mapping, found {noise!r}", path)
+        hand = h.get("hand") or {}
+        if not isinstance(hand, dict):
+            raise InputError(f"header_yaml: hand: expected a mapping, found {hand!r}", path)
         return cls(
             T_object_wrist=d["T_object_wrist"],
             joints=d["joints"],
@@ -347,5 +358,6 @@ class Demonstration:
             strategy=str(h.get("strategy", "")),
             noise=noise,
             seed=h.get("seed"),
+            hand=hand,
             path=str(path),
         )

@@ -1,4 +1,5 @@
-"""``pbdgrasp demo``: generate the synthetic human demonstrations (``assets/demonstrations/*.npz``)."""
+"""``pbdgrasp demo``: generate the synthetic human demonstrations (``assets/demonstrations/*.npz``), or
+import a real one from hand-tracker keypoints (``pbdgrasp demo import KEYPOINTS.npz --object O -o D.npz``)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ from assets.errors import InputError
 from ._args import output_dir, seed
 
 NAME = "demo"
-HELP = "generate (regenerate) the human demonstrations: pbdgrasp demo generate --all"
+HELP = (
+    "make human demonstrations: pbdgrasp demo generate --all | demo import KEYPOINTS.npz --object O -o D.npz"
+)
 ORDER = 10
 
 log = logging.getLogger(__name__)
@@ -31,13 +34,28 @@ def add_arguments(p) -> None:
         default=str(assets.ROOT / "demonstrations"),
         help="output directory (default: the shipped assets/demonstrations)",
     )
+    i = sub.add_parser(
+        "import",
+        help="fit the human hand model to 21 hand keypoints a frame (see assets/demonstrations/README.md)",
+    )
+    i.add_argument("keypoints", metavar="KEYPOINTS.npz", help="keypoints (T, 21, 3) [m] and rate_hz")
+    i.add_argument("--object", required=True, help="the grasped object (pbdgrasp assets lists them)")
+    i.add_argument("--grasp-type", choices=("precision", "power"), help="default: the object's")
+    i.add_argument("--rate-hz", type=float, default=20.0, help="the demonstration's rate (default 20 Hz)")
+    i.add_argument("-o", "--output", required=True, metavar="DEMO.npz", help="demonstration file to write")
 
 
 def run(args) -> int:
+    action = getattr(args, "demo_command", None)
+    if action == "import":
+        return _import(args)
+    if action != "generate":
+        raise InputError(
+            "expected an action: pbdgrasp demo generate [--object O | --all] | "
+            "demo import KEYPOINTS.npz --object O -o DEMO.npz"
+        )
     from assets.demonstrations.generate import DEMONSTRATED_OBJECTS, generate, object_rng
 
-    if getattr(args, "demo_command", None) != "generate":
-        raise InputError("expected an action: pbdgrasp demo generate [--object O | --all]")
     if args.object is not None and args.object not in DEMONSTRATED_OBJECTS:
         raise InputError(
             f"--object: no demonstration strategy for {args.object!r}; "
@@ -54,4 +72,22 @@ def run(args) -> int:
             f"{report.max_penetration_mm:.2f} mm (trajectory {report.max_penetration_trajectory_mm:.2f} mm), "
             f"{report.virtual_fingers} -> {path}"
         )
+    return 0
+
+
+def _import(args) -> int:
+    from retarget.keypoint_import import import_keypoints
+
+    out = Path(args.output)
+    if out.suffix != ".npz":
+        raise InputError(f"output: expected a file name ending in .npz, found {out.name!r}")
+    demo, fit = import_keypoints(args.keypoints, args.object, args.grasp_type, args.rate_hz)
+    path = demo.save(out)
+    status = "converged" if fit.success else "NOT converged"
+    print(
+        f"{demo.object}: {demo.num_steps} steps ({demo.duration_s:.2f} s, {demo.grasp_type}), hand scale "
+        f"{fit.calibration.scale:.3f}, keypoint noise {fit.sigma_m * 1e3:.2f} mm per axis, residual "
+        f"{fit.residual_rms_m.mean() * 1e3:.2f} mm RMS (worst point {fit.residual_max_m.max() * 1e3:.1f} "
+        f"mm), {status} ({fit.nfev} evaluations, {fit.time_s:.1f} s) -> {path}"
+    )
     return 0
