@@ -8,7 +8,6 @@ retargets and infers like the shipped ham. Bad files go through the CLI (one lin
 
 from __future__ import annotations
 
-import contextlib
 import re
 
 import numpy as np
@@ -305,12 +304,13 @@ def test_bad_file_gives_exit_2_and_one_line_naming_the_file(name, tmp_path, caps
     path = tmp_path / f"{name}.npz"
     np.savez(path, **make())
     out = tmp_path / "out" / "demo.npz"
+    out.parent.mkdir()
     status = main(["demo", "import", str(path), "--object", "jam", "-o", str(out)])
     lines = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(lines) == 1, lines
     assert lines[0].startswith(f"error: {path}: "), lines[0]
     assert re.search(expect, lines[0]), (expect, lines[0])
-    assert not out.parent.exists()
+    assert not list(out.parent.iterdir())
 
 
 def test_a_pickle_is_refused(tmp_path, capsys):
@@ -324,16 +324,14 @@ def test_a_pickle_is_refused(tmp_path, capsys):
     "argv, expect",
     [
         (["--object", "teapot"], r"--object: unknown object 'teapot'; valid names: .*jam"),
-        (["--object", "jam", "--rate-hz", "0"], r"--rate-hz: expected a positive number"),
+        (["--object", "jam", "--rate-hz", "0"], r"--rate-hz: expected a number in \[1, 1000\] Hz"),
         (["--object", "jam", "--grasp-type", "pinch"], r"invalid choice: 'pinch'"),
     ],
 )
 def test_bad_arguments(argv, expect, tmp_path, capsys):
     src = tmp_path / "k.npz"
     np.savez(src, **_good())
-    with pytest.raises(SystemExit) if "pinch" in argv else contextlib.nullcontext():
-        status = main(["demo", "import", str(src), *argv, "-o", str(tmp_path / "d.npz")])
-        assert status == 2
+    assert main(["demo", "import", str(src), *argv, "-o", str(tmp_path / "d.npz")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.search(expect, err[0]), err
     assert not (tmp_path / "d.npz").exists()

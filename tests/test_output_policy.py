@@ -133,6 +133,7 @@ FILE_OUTPUTS = {
     "infer -o": (["infer", "t.traj.npz", "-o", "{out}"], ".model.npz"),
     "inspect --plot": (["inspect", "m.model.npz", "--scene", "ham", "--plot", "{out}"], ".png"),
     "bench -o": (["bench", "--quick", "-o", "{out}"], ".json"),
+    "demo import -o": (["demo", "import", "k.npz", "--object", "ham", "-o", "{out}"], ".npz"),
     "table1 --db": (["table1", "--quick", "--db", "{out}"], ".sqlite"),
 }
 DIR_OUTPUTS = {

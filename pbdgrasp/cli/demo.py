@@ -9,7 +9,7 @@ from pathlib import Path
 import assets
 from assets.errors import InputError
 
-from ._args import output_dir, seed
+from ._args import float_in, output_dir, output_file, seed
 
 NAME = "demo"
 HELP = (
@@ -41,8 +41,12 @@ def add_arguments(p) -> None:
     i.add_argument("keypoints", metavar="KEYPOINTS.npz", help="keypoints (T, 21, 3) [m] and rate_hz")
     i.add_argument("--object", required=True, help="the grasped object (pbdgrasp assets lists them)")
     i.add_argument("--grasp-type", choices=("precision", "power"), help="default: the object's")
-    i.add_argument("--rate-hz", type=float, default=20.0, help="the demonstration's rate (default 20 Hz)")
-    i.add_argument("-o", "--output", required=True, metavar="DEMO.npz", help="demonstration file to write")
+    i.add_argument(
+        "--rate-hz", type=float_in(1.0, 1000.0, "Hz"), default=20.0, help="output rate (default 20)"
+    )
+    i.add_argument(
+        "-o", "--output", required=True, type=output_file(".npz"), metavar="DEMO.npz", help="file to write"
+    )
 
 
 def run(args) -> int:
@@ -79,8 +83,6 @@ def _import(args) -> int:
     from retarget.keypoint_import import import_keypoints
 
     out = Path(args.output)
-    if out.suffix != ".npz":
-        raise InputError(f"output: expected a file name ending in .npz, found {out.name!r}")
     demo, fit = import_keypoints(args.keypoints, args.object, args.grasp_type, args.rate_hz)
     path = demo.save(out)
     status = "converged" if fit.success else "NOT converged"
