@@ -214,3 +214,39 @@ def test_scene_loader_raises_only_input_error_on_edited_scenes(tmp_path, data):
         target[path[-1]] = data.draw(_json)
     (tmp_path / "s.yaml").write_text(yaml.safe_dump(doc))
     _expect_only_input_error(load_scene, tmp_path / "s.yaml")
+
+
+@FUZZ
+@given(q=st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=19, max_size=19))
+def test_any_19_numbers_are_a_configuration_in_range_or_an_input_error(q):
+    """The range checks of Q.json (wrist within 2 m, rotation vector within 2 pi, joints within limits)."""
+    from planning.hand_urdf import hand_joint_limits
+    from planning.qfile import MAX_WRIST_DISTANCE_M, q_from_dict
+
+    try:
+        got = q_from_dict({"q": q})
+    except InputError:
+        return
+    limits = hand_joint_limits("sah")
+    assert np.linalg.norm(got[:3]) <= MAX_WRIST_DISTANCE_M and np.linalg.norm(got[3:6]) <= 2 * np.pi + 1e-9
+    assert np.all(got[6:] >= limits[:, 0] - 1e-6) and np.all(got[6:] <= limits[:, 1] + 1e-6)
+
+
+def _sqlite_page_of(raw: bytes) -> bytes:
+    """A file that starts like SQLite (so that the header check passes) and continues with ``raw``."""
+    return b"SQLite format 3\x00" + raw
+
+
+@FUZZ
+@given(raw=st.binary(max_size=4096), headed=st.booleans())
+def test_the_results_database_opener_raises_only_input_error_on_any_bytes(tmp_path, raw, headed):
+    from pbdgrasp.results_db import open_db
+
+    path = tmp_path / "r.sqlite"
+    path.write_bytes(_sqlite_page_of(raw) if headed else raw)
+    try:
+        open_db(path, create=False, lock_timeout_s=0.1).close()
+    except InputError:
+        pass
+    for extra in tmp_path.glob("r.sqlite-*"):
+        extra.unlink()

@@ -114,3 +114,22 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no Dask scheduler answered" in err[0], err
+
+
+def test_a_scheduler_without_workers_is_one_line(tmp_path, capsys):
+    from distributed import LocalCluster
+
+    with LocalCluster(
+        n_workers=0, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        argv = [
+            "table1",
+            "--quick",
+            "--scheduler",
+            cluster.scheduler_address,
+            "--run-dir",
+            str(tmp_path / "r"),
+        ]
+        assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no worker after" in err[0] and "dask worker" in err[0], err
