@@ -287,6 +287,7 @@ def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
 
     _tiny_demo(tmp_path / "tiny.npz")
     out = tmp_path / "out" / "tiny.traj.npz"
+    out.parent.mkdir()  # the output policy refuses a missing parent (tests/test_output_policy.py)
     status = main(
         ["retarget", str(tmp_path / "tiny.npz"), "-o", str(out), "--max-nfev", "40", "--no-progress"]
     )
