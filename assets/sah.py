@@ -43,6 +43,7 @@ __all__ = [
     "rest_joints",
     "clip_joints",
     "fingertip_jacobian",
+    "fingertip_marginals",
     "config_cov_from_fingertip_cov",
 ]
 
@@ -177,6 +178,27 @@ def fingertip_jacobian(T_object_wrist: np.ndarray, joints: np.ndarray) -> np.nda
     for k, t in enumerate(TIP_LINKS):
         J[..., k, :, 6:] = T[..., :3, :3] @ m.point_jacobian(joints, t, poses)
     return J.reshape(batch + (12, Q_DIM))
+
+
+def fingertip_marginals(
+    T_object_wrist_mean: np.ndarray, joints_mean: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fingertips' Gaussian marginals of configuration marginals, linearized: ``J cov J^T``.
+
+    Args:
+        T_object_wrist_mean: (T, 4, 4) wrist means in the object frame.
+        joints_mean: (T, 13) [rad].
+        cov: (T, 19, 19) ``[omega, v, joints]`` (the body tangent of :func:`fingertip_jacobian`).
+
+    Returns:
+        means (T, 4, 3) [m] and covariances (T, 4, 3, 3) [m^2] of the fingertips in the object frame,
+        :data:`FINGERS` order (the 3x3 diagonal blocks; the cross-finger terms are dropped).
+    """
+    mean = fingertip_positions_in(T_object_wrist_mean, joints_mean)
+    J = fingertip_jacobian(T_object_wrist_mean, joints_mean)  # (T, 12, 19)
+    full = J @ np.asarray(cov, dtype=float) @ np.swapaxes(J, -1, -2)
+    blocks = np.stack([full[..., 3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(len(FINGERS))], axis=-3)
+    return mean, 0.5 * (blocks + np.swapaxes(blocks, -1, -2))
 
 
 def config_cov_from_fingertip_cov(J: np.ndarray, cov_tips: np.ndarray, rcond: float = 1e-10) -> np.ndarray:

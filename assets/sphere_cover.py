@@ -71,12 +71,14 @@ class CollisionShape:
     T_link_shape: np.ndarray
 
 
-def collision_shapes(path: str | Path) -> list[CollisionShape]:
-    """Every ``<collision>`` primitive of a URDF, in file order.
+def collision_shapes(path: str | Path, element: str = "collision") -> list[CollisionShape]:
+    """Every ``<collision>`` primitive of a URDF, in file order (``element="visual"``: the ``<visual>`` ones).
 
     Raises:
-        InputError: unreadable XML, or a collision geometry that is not a box, sphere, capsule or cylinder.
+        InputError: unreadable XML, or a geometry that is not a box, sphere, capsule or cylinder.
     """
+    if element not in ("collision", "visual"):
+        raise ValueError(f"element: expected 'collision' or 'visual', found {element!r}")
     path = Path(path)
     try:
         root = ET.parse(path).getroot()
@@ -85,12 +87,12 @@ def collision_shapes(path: str | Path) -> list[CollisionShape]:
     shapes = []
     for link in root.findall("link"):
         name = link.get("name")
-        for col in link.findall("collision"):
+        for col in link.findall(element):
             geom = list(col.find("geometry") if col.find("geometry") is not None else [])
             if len(geom) != 1:
-                raise InputError(f"link {name!r}: a <collision> needs exactly one geometry", path)
+                raise InputError(f"link {name!r}: a <{element}> needs exactly one geometry", path)
             g, org = geom[0], col.find("origin")
-            where = f"{path}: link {name} collision"
+            where = f"{path}: link {name} {element}"
             xyz = _floats(None if org is None else org.get("xyz"), 3, 0.0, f"{where} xyz")
             rpy = _floats(None if org is None else org.get("rpy"), 3, 0.0, f"{where} rpy")
             if g.tag == "box":
@@ -100,7 +102,7 @@ def collision_shapes(path: str | Path) -> list[CollisionShape]:
             elif g.tag in ("capsule", "cylinder"):
                 size = (float(g.get("radius", "nan")), float(g.get("length", "nan")))
             else:
-                raise InputError(f"link {name!r}: collision geometry {g.tag!r} has no sphere cover", path)
+                raise InputError(f"link {name!r}: {element} geometry {g.tag!r} is not a primitive", path)
             if not all(math.isfinite(s) and s > 0 for s in size):
                 raise InputError(f"link {name!r}: {g.tag} dimensions must be > 0, found {size}", path)
             shapes.append(CollisionShape(name, g.tag, size, make_pose(_rpy_matrix(rpy), xyz)))

@@ -126,7 +126,7 @@ def test_a_urdf_with_a_mesh_collision_is_refused(tmp_path):
         '<robot name="h"><link name="base"><collision><geometry><mesh filename="x.obj"/></geometry>'
         "</collision></link></robot>"
     )
-    with pytest.raises(InputError, match="has no sphere cover"):
+    with pytest.raises(InputError, match="is not a primitive"):
         SphereCover.from_urdf(urdf)
 
 
