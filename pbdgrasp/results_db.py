@@ -33,6 +33,7 @@ __all__ = [
     "finished_keys",
     "insert_trial",
     "load_trials",
+    "find_trial",
     "source_commit",
 ]
 
@@ -309,6 +310,35 @@ def load_trials(conn: sqlite3.Connection, rows: list[str] | None = None) -> list
     return out
 
 
+def find_trial(
+    path: str | os.PathLike, trial: int, row: str | None = None, planner: str | None = None
+) -> TrialRecord:
+    """The stored trial ``trial`` of an existing database, narrowed by ``row`` and ``planner``.
+
+    Raises:
+        InputError: the database cannot be opened (:func:`open_db`), no such trial is stored, or the
+            trial is stored for several rows or planners and ``row`` / ``planner`` does not choose one.
+    """
+    conn = open_db(path, create=False)
+    try:
+        records = [r for r in load_trials(conn) if r.trial == trial]
+    finally:
+        conn.close()
+    for attr, wanted in (("row", row), ("planner", planner)):
+        if wanted is not None:
+            records = [r for r in records if getattr(r, attr) == wanted]
+        choices = sorted({getattr(r, attr) for r in records})
+        if len(choices) > 1:
+            raise InputError(
+                f"trial {trial} is stored for several {attr}s ({', '.join(choices)}); "
+                f"choose one with --{attr}",
+                path,
+            )
+    if not records:
+        raise InputError(f"no trial {trial} of these settings is stored", path)
+    return records[0]
+
+
 def params_json(params: dict) -> str:
     """Canonical JSON of a run's parameters (sorted keys)."""
     return json.dumps(params, sort_keys=True)
@@ -334,7 +364,8 @@ def record_from_plan(
             ``result.eta_s``.
 
     The grasp column holds the closed grasp (``closed_q``, ``quality``, ``contact_links``) of the best
-    phi_o evaluation and, for a solved trial, the path's last configuration ``q`` (19,) [m, rad].
+    phi_o evaluation and, for a solved trial, the path's last configuration ``q`` (19,) and the whole
+    ``path`` (K, 19) [m, rad] from the start to it (for ``pbdgrasp view``).
     """
     grasp: dict = {}
     if result.grasp is not None:
@@ -345,6 +376,7 @@ def record_from_plan(
         }
     if result.success and len(result.path):
         grasp["q"] = [float(x) for x in result.path[-1]]
+        grasp["path"] = [[float(x) for x in q] for q in result.path]
     return TrialRecord(
         row=row,
         planner=planner,

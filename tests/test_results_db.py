@@ -154,3 +154,35 @@ def _with_params(r: TrialRecord, params: dict) -> TrialRecord:
     from pbdgrasp.results_db import params_json
 
     return dataclasses.replace(r, params_json=params_json(params))
+
+
+def test_a_solved_trial_stores_its_path_and_find_trial_returns_it(tmp_path):
+    import json
+
+    import numpy as np
+    import pytest
+
+    from assets.errors import InputError
+    from pbdgrasp.results_db import find_trial, record_from_plan
+    from planning.rrt_connect import PlanResult
+
+    path = np.arange(3 * 19, dtype=float).reshape(3, 19) / 7.0
+    result = PlanResult(True, "solved", 1.0, 12, 0.2, path)
+    conn = open_db(tmp_path / "r.sqlite")
+    for planner in ("learned", "baseline"):
+        rec = record_from_plan(
+            result, row="ham", planner=planner, trial=4, seed=1, git_commit="x", params_json="{}"
+        )
+        insert_trial(conn, rec)
+    conn.close()
+    stored = find_trial(tmp_path / "r.sqlite", 4, planner="baseline")
+    grasp = json.loads(stored.grasp_json)
+    assert (
+        stored.planner == "baseline"
+        and np.array_equal(grasp["path"], path)
+        and grasp["q"] == path[-1].tolist()
+    )
+    with pytest.raises(InputError, match="several planners"):
+        find_trial(tmp_path / "r.sqlite", 4)
+    with pytest.raises(InputError, match="no trial 5"):
+        find_trial(tmp_path / "r.sqlite", 5, planner="learned")

@@ -75,27 +75,12 @@ def run(args) -> int:
 def _stored_q(args) -> tuple[str, np.ndarray]:
     """The scene and the pre-closing q of a stored trial (``--from-db``, ``--trial``, ``--row``,
     ``--planner``)."""
-    from pbdgrasp.results_db import load_trials, open_db
+    from pbdgrasp.results_db import find_trial
     from planning.qfile import q_from_dict
 
     if args.trial is None:
         raise InputError("--from-db: expected --trial N as well")
-    conn = open_db(args.from_db, create=False)
-    try:
-        records = [r for r in load_trials(conn) if r.trial == args.trial]
-    finally:
-        conn.close()
-    for attr in ("row", "planner"):
-        wanted = getattr(args, attr)
-        if wanted is not None:
-            records = [r for r in records if getattr(r, attr) == wanted]
-        choices = sorted({getattr(r, attr) for r in records})
-        if len(choices) > 1:
-            raise InputError(f"trial {args.trial} is stored for several {attr}s ({', '.join(choices)}); "
-                             f"choose one with --{attr}", args.from_db)  # fmt: skip
-    if not records:
-        raise InputError(f"no trial {args.trial} of these settings is stored", args.from_db)
-    rec = records[0]
+    rec = find_trial(args.from_db, args.trial, args.row, args.planner)
     grasp = json.loads(rec.grasp_json)
     q = grasp.get("q", grasp.get("closed_q"))
     if q is None:
