@@ -1,6 +1,7 @@
 # Two commands for a newcomer: `make test` and `make table1`.
 # Each creates .venv if missing, installs the package (editable, with test extras)
-# and the one system library Open3D needs (libusb-1.0-0). A second run is quick.
+# and the system packages: libusb-1.0-0 (Open3D needs it) and chromium (the viewer's screenshots and
+# its tests load the page in headless Chromium). A second run is quick.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -20,18 +21,25 @@ endif
 
 setup: syslibs $(STAMP)
 
-syslibs:
-	@if ! /sbin/ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+# $(call apt_need,PACKAGE,WHY,CHECK): run CHECK; if it fails, install PACKAGE with apt-get as root, or
+# stop with one line saying what to install.
+define apt_need
+	@if ! $(3); then \
 	  if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null; then \
-	    echo "installing libusb-1.0-0 (needed by Open3D)"; \
-	    (apt-get install -y -q libusb-1.0-0 >/dev/null 2>&1 || \
-	     (apt-get update -q >/dev/null && apt-get install -y -q libusb-1.0-0 >/dev/null)) || \
-	     { echo "error: could not install libusb-1.0-0 with apt-get"; exit 1; }; \
+	    echo "installing $(1) ($(2))"; \
+	    (apt-get install -y -q $(1) >/dev/null 2>&1 || \
+	     (apt-get update -q >/dev/null && apt-get install -y -q $(1) >/dev/null)) || \
+	     { echo "error: could not install $(1) with apt-get"; exit 1; }; \
 	  else \
-	    echo "error: Open3D needs the system package libusb-1.0-0; install it (sudo apt-get install libusb-1.0-0) and rerun"; \
+	    echo "error: $(2): install the system package $(1) (sudo apt-get install $(1)) and rerun"; \
 	    exit 1; \
 	  fi; \
 	fi
+endef
+
+syslibs:
+	$(call apt_need,libusb-1.0-0,needed by Open3D,/sbin/ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0')
+	$(call apt_need,chromium,the viewer's screenshots and tests,command -v chromium >/dev/null)
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

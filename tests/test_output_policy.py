@@ -131,10 +131,16 @@ FILE_OUTPUTS = {
     "plan --best-q": (["plan", "--scene", "ham", "--model", "m.model.npz", "--best-q", "{out}"], ".json"),
     "retarget -o": (["retarget", "ham", "-o", "{out}"], ".traj.npz"),
     "infer -o": (["infer", "t.traj.npz", "-o", "{out}"], ".model.npz"),
+    "learn -o": (["learn", "ham", "-o", "{out}"], ".model.npz"),
+    "learn --trajectory": (["learn", "ham", "-o", "m.model.npz", "--trajectory", "{out}"], ".traj.npz"),
     "inspect --plot": (["inspect", "m.model.npz", "--scene", "ham", "--plot", "{out}"], ".png"),
     "bench -o": (["bench", "--quick", "-o", "{out}"], ".json"),
     "demo import -o": (["demo", "import", "k.npz", "--object", "ham", "-o", "{out}"], ".npz"),
     "table1 --db": (["table1", "--quick", "--db", "{out}"], ".sqlite"),
+    "view --screenshot": (
+        ["view", "--scene", "ham", "--model", "m.model.npz", "--screenshot", "{out}"],
+        ".png",
+    ),
 }
 DIR_OUTPUTS = {
     "demo generate -o": ["demo", "generate", "--object", "ham", "-o", "{out}"],
