@@ -304,6 +304,25 @@ def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
     assert "fingertip RMSE" in line and "steps in collision 0" in line
 
 
+def test_cli_learn_is_retarget_then_infer(tmp_path, capsys):
+    """``learn`` gives bit for bit the trajectory and the model of ``retarget`` then ``infer --scene``."""
+    from pbdgrasp.cli import main
+
+    _tiny_demo(tmp_path / "tiny.npz")
+    nfev = ["--max-nfev", "40", "--no-progress"]
+    assert main(["retarget", str(tmp_path / "tiny.npz"), "-o", str(tmp_path / "a.traj.npz"), *nfev]) == 0
+    infer = ["infer", str(tmp_path / "a.traj.npz"), "--scene", "ham", "-o", str(tmp_path / "a.model.npz")]
+    assert main([*infer, "--no-progress"]) == 0
+    learn = ["learn", str(tmp_path / "tiny.npz"), "-o", str(tmp_path / "b.model.npz")]
+    assert main([*learn, "--trajectory", str(tmp_path / "b.traj.npz"), *nfev]) == 0
+    for kind in ("traj", "model"):
+        a, b = np.load(tmp_path / f"a.{kind}.npz"), np.load(tmp_path / f"b.{kind}.npz")
+        for key in a.files:
+            if a[key].dtype.kind in "fiub" and key not in ("solve_time_s", "traj_solve_time_s"):
+                assert np.array_equal(a[key], b[key]), (kind, key)
+    assert "constrained steps" in capsys.readouterr().out
+
+
 def test_cli_errors_cleanly_on_a_bad_demonstration(tmp_path, capsys):
     from pbdgrasp.cli import main
 

@@ -38,8 +38,6 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from tqdm import tqdm
-
     start = time.perf_counter()
     traj = Trajectory.load(args.trajectory)
     params = VariationParams.from_yaml(args.params) if args.params else VariationParams()
@@ -52,28 +50,42 @@ def run(args) -> int:
             warn(
                 f"{args.trajectory} is a strategy for {traj.object!r}; the scene holds {scene.object.name!r}"
             )
-    bar = tqdm(desc="solving the variation model", unit="it", disable=args.no_progress or None, leave=False)
+    model = infer(traj, scene, params, no_progress=args.no_progress)
+    model.save(args.output)
+    print(summary(model, args.output, time.perf_counter() - start))
+    return 0
+
+
+def infer(traj, scene, params, no_progress: bool = False):
+    """The variation model of ``traj``: in ``scene`` (its object prior and clearance factors) or, with
+    ``scene=None``, with the joint limits only; a progress bar of the solver's iterations."""
+    from tqdm import tqdm
+
+    bar = tqdm(desc="solving the variation model", unit="it", disable=no_progress or None, leave=False)
 
     def tick(error: float) -> None:
         bar.update(1)
         bar.set_postfix(error=f"{error:.4g}")
 
     try:
-        if scene is not None:
-            from pbdgrasp.scene_model import learn_in_scene
+        if scene is None:
+            return solve(traj, params, joint_limits=JOINT_LIMITS, on_iteration=tick)
+        from pbdgrasp.scene_model import learn_in_scene
 
-            quiet = False if args.no_progress else None
-            stage(f"scene {scene.name}: distance fields and the clearance factors", enabled=quiet)
-            model = learn_in_scene(traj, scene, params, on_iteration=tick)
-        else:
-            model = solve(traj, params, joint_limits=JOINT_LIMITS, on_iteration=tick)
+        stage(
+            f"scene {scene.name}: distance fields and the clearance factors",
+            enabled=False if no_progress else None,
+        )
+        return learn_in_scene(traj, scene, params, on_iteration=tick)
     finally:
         bar.close()
-    model.save(args.output)
+
+
+def summary(model, out, elapsed_s: float) -> str:
+    """The one line an inference prints: steps, constraints, iterations and convergence, times."""
     status = "converged" if model.converged else "NOT converged"
-    print(
-        f"{args.output}: T = {model.num_steps}, {int(model.constrained.sum())} constrained steps, "
+    return (
+        f"{out}: T = {model.num_steps}, {int(model.constrained.sum())} constrained steps, "
         f"{model.iterations} iteration(s) {status}, solve {model.solve_time_s * 1e3:.0f} ms, "
-        f"total {(time.perf_counter() - start) * 1e3:.0f} ms"
+        f"total {elapsed_s * 1e3:.0f} ms"
     )
-    return 0

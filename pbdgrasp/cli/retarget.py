@@ -74,8 +74,13 @@ def run(args) -> int:
     traj, result = retarget_in_scene(
         demo, scene, config, progress=not args.no_progress, meta={"seed": args.seed}
     )
-    elapsed = time.perf_counter() - start
     traj.save(out)
+    print(summary(demo, traj, result, time.perf_counter() - start, out))
+    return 0
+
+
+def summary(demo, traj, result, elapsed_s: float, out) -> str:
+    """The one line a retargeting prints: the fit, how the last step holds the object, the time."""
     collide = result.meta.get("steps_in_collision")
     shape = result.meta.get("last_step")
     held = (
@@ -84,10 +89,9 @@ def run(args) -> int:
         if shape
         else ""
     )
-    print(
+    return (
         f"{demo.object} ({demo.grasp_type}): {traj.num_steps} steps, fingertip RMSE {result.rmse_mm:.1f} mm "
         f"(final step {result.fingertip_rmse_mm[-1]:.1f} mm, targets {result.meta['targets']}), {held}"
         f"{result.virtual_fingers.describe() if result.virtual_fingers else ''}, "
-        f"steps in collision {'n/a' if collide is None else collide}, {elapsed:.1f} s -> {out}"
+        f"steps in collision {'n/a' if collide is None else collide}, {elapsed_s:.1f} s -> {out}"
     )
-    return 0
