@@ -372,7 +372,7 @@ def test_a_power_strategy_touches_its_object_with_the_palm_or_the_proximal_links
     d, res = _last_step_distances(name, "by_grasp_type")
     assert res.meta["targets"] == "scaled"
     assert min(d[link] for link in _PALM_LINKS) <= TOUCH_M, {k: round(1e3 * v, 1) for k, v in d.items()}
-    assert res.meta["last_step"]["palm_to_object_mm"] < 10.0
+    assert res.meta["last_step"]["palm_to_object_mm"] < 15.0  # a wrap (the paper's targets: 30+ mm)
     if name == "chips":  # the paper's targets: the palm stands back, only fingertips and distals near
         d_paper, _ = _last_step_distances(name, "fingertips")
         assert d_paper["wrist"] > 0.03

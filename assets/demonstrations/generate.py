@@ -64,7 +64,8 @@ FINGER_RADIUS_M = {"thumb": 0.009, "index": 0.008, "middle": 0.0085, "ring": 0.0
 PALM_RADIUS_M = 0.014
 CONTACT_TOL_M = 0.002
 PENETRATION_TOL_M = 0.002
-PREGRASP_DISTANCE_M = 0.15
+#: Wrist start distance from the grasp [m]: where a human reach-to-grasp starts (30-40 cm away).
+PREGRASP_DISTANCE_M = 0.35
 #: Sensor noise: per-axis standard deviations of stationary first-order Gauss-Markov processes.
 NOISE = {
     "model": "first-order Gauss-Markov (AR(1)) per axis, stationary, correlation time correlation_time_s",
