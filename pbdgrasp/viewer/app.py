@@ -97,7 +97,7 @@ class StrategyViewer:
         host, port: where to listen (port 0: a free one).
 
     Raises:
-        InputError: no model and no trial, a model or a trial of fewer than one step or waypoint.
+        InputError: no model and no trial to show.
     """
 
     def __init__(
@@ -114,7 +114,15 @@ class StrategyViewer:
         self.scene, self.models, self.trial, self.rng = scene, dict(models), trial, rng
         self._world = World(scene, hand="sah")
         self._lock = threading.Lock()
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server = None
+        try:
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
+            self._build()
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self) -> None:
         self.server.scene.set_up_direction("+z")
         self._layers = {name: self.server.scene.add_frame(f"/{name}", show_axes=False) for name in LAYERS}
         self._add_scene()
@@ -125,14 +133,14 @@ class StrategyViewer:
         self._ellipsoids: dict[str, list[list]] = {}
         for label, model in self.models.items():
             self._add_marginals(label, model)
-        self._path = trial_path(trial) if trial is not None else np.zeros((0, 19))
+        self._path = trial_path(self.trial) if self.trial is not None else np.zeros((0, 19))
         self._all_steps = self._draw_text = self._trial_text = None
         self._gui()
         if self.model_label is not None:
             self.show_step(self.model_label, self.models[self.model_label].num_steps - 1)
         else:
             self.hand.show(False)
-        if trial is not None:
+        if self.trial is not None:
             self._add_trial()
 
     @property
