@@ -384,3 +384,10 @@ def test_the_source_digest_follows_the_code_not_its_docstrings_or_comments(tmp_p
     assert all(digest(t) == base for t in same)
     assert len({digest(t) for t in changed} | {base}) == len(changed) + 1
     assert digest("def f(:\n") != base  # a file that does not parse is hashed by its bytes
+
+
+def test_the_report_keeps_dirty_in_a_shortened_commit():
+    from pbdgrasp.cli.table1 import _short
+
+    assert _short("c764d460cb8c1234abcd-dirty") == "c764d460cb8c-dirty"
+    assert _short("c764d460cb8c1234abcd") == "c764d460cb8c" and _short("unknown") == "unknown"

@@ -173,7 +173,7 @@ def run(args) -> int:
             if config.retarget_max_nfev is None
             else f"COARSE: at most {config.retarget_max_nfev} Rosenbrock evaluations per step",
             "seed": f"{config.seed} (trial streams SeedSequence(seed, spawn_key=(row, planner, trial)))",
-            "git commit(s)": ", ".join(sorted({r.git_commit[:12] for r in summary.records})) or "—",
+            "git commit(s)": ", ".join(sorted({_short(r.git_commit) for r in summary.records})) or "—",
         },
         "run": {
             "this invocation": f"{summary.wall_time_s:.0f} s wall time ({summary.strategy_time_s:.0f} s "
@@ -208,3 +208,9 @@ def run(args) -> int:
         f"{summary.wall_time_s:.0f} s -> {config.db_path}; report: {', '.join(str(f) for f in files)}"
     )
     return 1 if summary.errors else 0
+
+
+def _short(commit: str) -> str:
+    """A commit's first 12 characters, keeping ``-dirty`` (a run of uncommitted sources)."""
+    head, dirty, _ = commit.partition("-dirty")
+    return head[:12] + dirty
