@@ -298,15 +298,29 @@ def insert_trial(conn: sqlite3.Connection, rec: TrialRecord) -> None:
         raise InputError(f"cannot store a finished trial ({exc}); it was kept in {side}", db) from None
 
 
-def load_trials(conn: sqlite3.Connection, rows: list[str] | None = None) -> list[TrialRecord]:
-    """All stored trials (optionally of some rows), ordered by row, planner and trial."""
+def load_trials(
+    conn: sqlite3.Connection, rows: list[str] | None = None, *, trial: int | None = None
+) -> list[TrialRecord]:
+    """The stored trials (of some rows, of one trial number, if given), ordered by row, planner and trial.
+
+    The selection is made by SQLite, so a stored path (kilobytes a trial) is read only for the trials kept.
+    """
     names = _columns()
+    where, params = [], []
+    if rows is not None:
+        where.append(f"row IN ({', '.join('?' * len(rows))})")
+        params += list(rows)
+    if trial is not None:
+        where.append("trial = ?")
+        params.append(int(trial))
+    sql = f"SELECT {', '.join(names)} FROM trials"
+    if where:
+        sql += " WHERE " + " AND ".join(where)
     out = []
-    for values in conn.execute(f"SELECT {', '.join(names)} FROM trials ORDER BY row, planner, trial"):
+    for values in conn.execute(sql + " ORDER BY row, planner, trial", params):
         d = dict(zip(names, values, strict=True))
         d["success"] = bool(d["success"])
-        if rows is None or d["row"] in rows:
-            out.append(TrialRecord(**d))
+        out.append(TrialRecord(**d))
     return out
 
 
@@ -321,7 +335,7 @@ def find_trial(
     """
     conn = open_db(path, create=False)
     try:
-        records = [r for r in load_trials(conn) if r.trial == trial]
+        records = load_trials(conn, trial=trial)
     finally:
         conn.close()
     for attr, wanted in (("row", row), ("planner", planner)):
