@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import threading
@@ -36,9 +37,10 @@ def find_chromium() -> str:
     """The Chromium executable (see the module docstring). Raises :class:`BrowserError` if there is none."""
     env = os.environ.get("PBDGRASP_CHROMIUM")
     if env:
-        if shutil.which(env) is None:
+        found = shutil.which(env)
+        if found is None:
             raise BrowserError(f"PBDGRASP_CHROMIUM={env} is not an executable")
-        return shutil.which(env)
+        return found
     for name in ("chromium", "chromium-browser", "google-chrome"):
         found = shutil.which(name)
         if found:
@@ -68,7 +70,7 @@ def headless_client(server, width: int, height: int, timeout_s: float = CONNECT_
 
     server.on_client_connect(on_connect)
     url = f"http://127.0.0.1:{server.get_port()}"
-    with tempfile.TemporaryDirectory(prefix="pbdgrasp-chromium-") as profile:
+    with tempfile.TemporaryDirectory(prefix="pbdgrasp-chromium-", ignore_cleanup_errors=True) as profile:
         args = [
             exe,
             "--headless=new",
@@ -83,7 +85,11 @@ def headless_client(server, width: int, height: int, timeout_s: float = CONNECT_
             url,
         ]
         proc = subprocess.Popen(
-            args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            args,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,  # its own process group: the renderer and GPU processes end with it
         )
         try:
             if not connected.wait(timeout_s):
@@ -94,12 +100,21 @@ def headless_client(server, width: int, height: int, timeout_s: float = CONNECT_
                 )
             yield clients[0]
         finally:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            _stop_group(proc)
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """End the browser and every process of its group (renderer, GPU) before its profile is removed."""
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(10)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        pass
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)  # what of the group is left
+    except ProcessLookupError:
+        pass
+    proc.wait()
 
 
 def screenshot(
