@@ -205,11 +205,15 @@ class StrategyViewer:
         )
 
     # -- the strategy ---------------------------------------------------------------------------------------
+    def _world_q(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Configurations (..., 19) in the world frame of wrist poses in the object frame and joints."""
+        T = self.scene.T_world_object @ T_object_wrist
+        return np.concatenate([q_from_pose(T), joints], axis=-1)
+
     def mean_q(self, label: str, k: int) -> np.ndarray:
         """The configuration (19,) of model ``label``'s mean at step k in the world frame."""
         model = self.models[label]
-        T = self.scene.T_world_object @ model.T_object_wrist_mean[k]
-        return np.concatenate([q_from_pose(T), model.joints_mean[k]])
+        return self._world_q(model.T_object_wrist_mean[k], model.joints_mean[k])
 
     def show_step(self, label: str, k: int) -> None:
         """Put the hand at model ``label``'s mean of step k and show that step's ellipsoids."""
@@ -221,15 +225,17 @@ class StrategyViewer:
         every = self._all_steps is not None and bool(self._all_steps.value)
         for other, nodes in self._ellipsoids.items():
             for j, row in enumerate(nodes):
+                wanted = other == label and (j == k or every)
                 for h in row:
-                    h.visible = other == label and (j == k or every)
+                    if h.visible != wanted:  # a message to every client only where it changes
+                        h.visible = wanted
 
     def draw_samples(self, n: int) -> np.ndarray:
         """Show ``n`` draws of the current step as ghost hands; returns which are collision-free (n,) bool."""
         n = int(np.clip(n, 1, MAX_DRAWS))
         model = self.models[self.model_label]
         T_ow, joints = sample_marginal(model, self.step, n, self.rng)
-        q = np.concatenate([q_from_pose(self.scene.T_world_object @ T_ow), sah.clip_joints(joints)], axis=1)
+        q = self._world_q(T_ow, sah.clip_joints(joints))
         with self._lock:
             free = np.array([self._world.is_free(qi) for qi in q])
         poses = hand_link_poses(q)
