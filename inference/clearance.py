@@ -21,6 +21,7 @@ its cutoff, so the other rows need none).
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -101,6 +102,32 @@ class HandClearance:
         self._link_pairs = self._link_pairs.reshape(-1, 2)
         self.n_spheres = len(cover)
         self.dim = self.n_spheres + len(pairs)
+
+    def reaching(self, active_margin_m: float) -> HandClearance:
+        """A copy whose margins are exact, with Jacobians, below ``active_margin_m`` [m] (>= 0)."""
+        if not (np.isfinite(active_margin_m) and active_margin_m >= 0):
+            raise InputError(f"active_margin_m: expected a finite number >= 0, found {active_margin_m!r}")
+        out = copy.copy(self)
+        out.active_margin_m = float(active_margin_m)
+        return out
+
+    def parts(self, with_object: bool = True) -> list[HandClearance]:
+        """One clearance per constraint source, each row of which is one smooth function: one per environment
+        field and one for the object (their sphere rows; no self rows), and one of the self pairs (its rows
+        ``n_spheres..``; sphere rows +inf). The margins of ``self`` are the rows' minimum over the parts."""
+        kw = dict(
+            clearance_m=self.clearance_m,
+            object_clearance_m=self.object_clearance_m,
+            self_clearance_m=self.self_clearance_m,
+            active_margin_m=self.active_margin_m,
+        )
+        none = np.zeros((0, 2), dtype=int)
+        out = [HandClearance(self.cover, (f,), None, self_pairs=none, **kw) for f in self.environment]
+        if self.object_field is not None and with_object:
+            out.append(HandClearance(self.cover, (), self.object_field, self_pairs=none, **kw))
+        if len(self.self_pairs):
+            out.append(HandClearance(self.cover, (), None, self_pairs=self.self_pairs, **kw))
+        return out
 
     def _checks(self):
         """Per field: (field, clearance [m], in the object frame, Lipschitz bound)."""

@@ -114,13 +114,18 @@ class JointLimitSites:
             graph.add(gtsam.PriorFactorVector(key_j(int(t)), mean, gtsam.noiseModel.Diagonal.Sigmas(std)))
         return graph
 
-    def update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
-        """One damped EP update of every site from the marginals of ``graph`` at ``values``; returns how far
-        those marginals moved since the last update: the largest change of a joint's mean or std [rad]
-        (infinite at the first update, 0 when no joint needs a site)."""
-        marginals = gtsam.Marginals(graph, values)
+    def update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, variances: np.ndarray | None = None
+    ) -> float:
+        """One damped EP update of every site from the marginals of ``graph`` at ``values`` (or the joints'
+        marginal ``variances`` (T, 13) [rad^2], when known); returns how far those marginals moved since the
+        last update: the largest change of a joint's mean or std [rad] (infinite at the first update, 0 when
+        no joint needs a site)."""
         m = np.stack([values.atVector(key_j(t)) for t in range(self.n)])
-        v = np.stack([np.diag(marginals.marginalCovariance(key_j(t))) for t in range(self.n)])
+        if variances is None:
+            marginals = gtsam.Marginals(graph, values)
+            variances = np.stack([np.diag(marginals.marginalCovariance(key_j(t))) for t in range(self.n)])
+        v = np.asarray(variances, dtype=float)
         tau_c = 1.0 / v - self.tau
         with np.errstate(divide="ignore", invalid="ignore"):
             m_c = (m / v - self.tau_m) / tau_c

@@ -29,6 +29,13 @@ Every field has the paper's default (or a documented choice where the paper is s
     joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
     joint_limit_max_iterations: 50        # EP updates on the final graph
     joint_limit_tolerance: 1.0e-3         # stop when no joint's marginal mean or std moves more [rad]
+    # the clearance in the marginals by expectation propagation (inference.clearance_sites), with a scene
+    clearance_sites: false                # true: also sites (draws clear the scene; docs/method.md)
+    clearance_site_min_probability: 1.0e-3  # a margin whose marginal puts more below 0 gets a site
+    clearance_site_reach_mm: 50.0         # margins up to this are evaluated exactly for the sites
+    clearance_site_damping: 0.5           # fraction of a site update applied (natural parameters)
+    clearance_site_object: false          # also the grasped object's clearance (true: the grasps stand off)
+    clearance_site_tolerance: 0.1         # stop when no step's marginal mean or std moves more, in its stds
     # GTSAM's Levenberg-Marquardt (section VI: the optimizer relinearizes every factor per iteration)
     max_iterations: 100                   # per solve
     relative_error_tolerance: 1.0e-5      # converged when the error decreases relatively less than this
@@ -81,6 +88,12 @@ class VariationParams:
     joint_limit_damping: float = 0.5
     joint_limit_max_iterations: int = 50
     joint_limit_tolerance: float = 1e-3
+    clearance_sites: bool = False
+    clearance_site_min_probability: float = 1e-3
+    clearance_site_reach_mm: float = 50.0
+    clearance_site_damping: float = 0.5
+    clearance_site_object: bool = False
+    clearance_site_tolerance: float = 0.1
     max_iterations: int = 100
     relative_error_tolerance: float = 1e-5
 
@@ -99,6 +112,10 @@ class VariationParams:
                     raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
                 continue
+            if f.name in ("clearance_sites", "clearance_site_object"):
+                if not isinstance(value, bool):
+                    raise InputError(f"{f.name}: expected true or false, found {value!r}")
+                continue
             is_int = f.name in ("max_iterations", "joint_limit_max_iterations")
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
@@ -108,9 +125,10 @@ class VariationParams:
                 object.__setattr__(self, f.name, int(value))
                 continue
             value = float(value)
-            if f.name == "joint_limit_damping" and not 0.0 < value <= 1.0:
+            if f.name in ("joint_limit_damping", "clearance_site_damping") and not 0.0 < value <= 1.0:
                 raise InputError(f"{f.name}: expected a fraction in (0, 1], found {value!r}")
-            if f.name == "joint_limit_min_probability" and not 0.0 < value < 1.0:
+            is_probability = f.name in ("joint_limit_min_probability", "clearance_site_min_probability")
+            if is_probability and not 0.0 < value < 1.0:
                 raise InputError(f"{f.name}: expected a probability in (0, 1), found {value!r}")
             allow_zero = f.name in (
                 "joint_floor_std_deg",

@@ -8,7 +8,9 @@ graph is solved by GTSAM's Levenberg-Marquardt, which relinearizes every factor 
 the relative decrease of the error is below ``relative_error_tolerance`` (GTSAM's ``checkConvergence``)
 or ``max_iterations`` iterations. The joint limits then go to their expectation-propagation fixed point
 (:mod:`inference.joint_limits`), each update followed by a warm-started solve, and the marginals are
-taken at the converged point. What each choice changed when measured is in docs/method.md.
+taken at the converged point. With ``params.clearance_sites`` (off by default) the clearance rows get
+expectation-propagation sites in the same loop (:mod:`inference.clearance_sites`), so that the marginals,
+not only the means, clear the scene. What each choice changed when measured is in docs/method.md.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from assets.se3 import se3_inverse
 from retarget.trajectory import Trajectory
 
 from .clearance import ClearanceFn
+from .clearance_sites import ClearanceSites
 from .factors import FingertipMap
 from .graph import build_graph, factor_covariances, initial_values, key_j, key_w, means_of
 from .joint_limits import JointLimitSites
@@ -74,28 +77,36 @@ def solve(
     n = traj.num_steps
     cov_f1 = factor_covariances(traj, params, fingertip_map)
     sites = JointLimitSites(joint_limits, n, params)
+    clearance_sites = ClearanceSites(clearance, n, mu_o, params)
     constrained = range(n) if clearance is not None else ()
 
     base = build_graph(traj, params, cov_f1, mu_o, None, clearance, constrained, fixed_object=True)
 
     def graph_at() -> gtsam.NonlinearFactorGraph:  # the same factors (and their clearance cache) + the sites
-        return sites.add_to(gtsam.NonlinearFactorGraph(base))
+        return clearance_sites.add_to(sites.add_to(gtsam.NonlinearFactorGraph(base)))
 
     values = initial_values(traj, mu_o, fixed_object=True)
     graph = graph_at()
     values, iterations, converged = optimize(graph, values, params, on_iteration=on_iteration)
-    if sites:  # expectation propagation of the joint limits, each update followed by a warm-started solve
+    if sites or clearance_sites:  # expectation propagation, each update followed by a warm-started solve
         for _ in range(params.joint_limit_max_iterations):
-            change = sites.update(graph, values)
+            change_j = change_c = 0.0
+            if clearance_sites:
+                covs = _step_covariances(graph, values, n)
+                change_c = clearance_sites.update(values, covs)
+                if sites:
+                    change_j = sites.update(graph, values, covs[:, np.arange(6, 19), np.arange(6, 19)])
+            else:
+                change_j = sites.update(graph, values)
             graph = graph_at()
             values, its, converged = optimize(graph, values, params, warm=True, on_iteration=on_iteration)
             iterations += its
-            if change < params.joint_limit_tolerance:
+            if change_j < params.joint_limit_tolerance and change_c < params.clearance_site_tolerance:
                 break
         else:
             converged = False
             log.warning(
-                "joint-limit propagation did not converge in %d iterations", params.joint_limit_max_iterations
+                "expectation propagation did not converge in %d updates", params.joint_limit_max_iterations
             )
     if not converged:
         log.warning("the variation model's solve did not converge (%d iterations)", iterations)
@@ -112,7 +123,7 @@ def solve(
         grasp_type=traj.grasp_type,
         object=traj.object,
         converged=converged,
-        constrained=np.isin(np.arange(n), list(constrained)) | sites.steps(),
+        constrained=np.isin(np.arange(n), list(constrained)) | sites.steps() | clearance_sites.steps(),
         source=traj,
         solve_time_s=time.perf_counter() - start,
     )
@@ -182,8 +193,13 @@ def conditional_marginals(
         ``T_object_wrist`` (T, 4, 4) wrist means in the object frame, ``joints`` (T, 13) [rad] and ``cov``
         (T, 19, 19) ``[omega, v, joints]`` (the body-frame covariance is unchanged by the change of frame).
     """
-    marginals = gtsam.Marginals(graph, values)
-    cov = np.stack([marginals.jointMarginalCovariance([key_w(t), key_j(t)]).fullMatrix() for t in range(n)])
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    cov = _step_covariances(graph, values, n)
     W, J = means_of(values, n)
     return se3_inverse(mu_o) @ W, J, cov
+
+
+def _step_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int) -> np.ndarray:
+    """(T, 19, 19) the marginal covariances of ``(W_t, J_t)``, ``[omega, v, joints]``, symmetrized."""
+    marginals = gtsam.Marginals(graph, values)
+    cov = np.stack([marginals.jointMarginalCovariance([key_w(t), key_j(t)]).fullMatrix() for t in range(n)])
+    return 0.5 * (cov + np.swapaxes(cov, -1, -2))
