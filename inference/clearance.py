@@ -111,6 +111,13 @@ class HandClearance:
         out.active_margin_m = float(active_margin_m)
         return out
 
+    def penetration(self, T_world_object, T_world_wrist, joints) -> np.ndarray:
+        """(...,) the smallest distance [m] of a sphere to the scene or of two spheres to each other, without
+        clearances: negative where the hand penetrates; exact below ``active_margin_m``."""
+        bare = copy.copy(self)
+        bare.clearance_m = bare.object_clearance_m = bare.self_clearance_m = 0.0
+        return bare(T_world_object, T_world_wrist, joints).min(axis=-1)
+
     def parts(self, with_object: bool = True) -> list[HandClearance]:
         """One clearance per constraint source, each row of which is one smooth function: one per environment
         field and one for the object (their sphere rows; no self rows), and one of the self pairs (its rows

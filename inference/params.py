@@ -35,6 +35,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     clearance_site_reach_mm: 50.0         # margins up to this are evaluated exactly for the sites
     clearance_site_damping: 0.5           # fraction of a site update applied (natural parameters)
     clearance_site_object: false          # also the grasped object's clearance (true: the grasps stand off)
+    backward_sweep: true                  # a solve that leaves a link in the scene: retry from the grasp back
     clearance_site_tolerance: 0.1         # stop when no step's marginal mean or std moves more, in its stds
     # GTSAM's Levenberg-Marquardt (section VI: the optimizer relinearizes every factor per iteration)
     max_iterations: 100                   # per solve
@@ -93,6 +94,7 @@ class VariationParams:
     clearance_site_reach_mm: float = 50.0
     clearance_site_damping: float = 0.5
     clearance_site_object: bool = False
+    backward_sweep: bool = True
     clearance_site_tolerance: float = 0.1
     max_iterations: int = 100
     relative_error_tolerance: float = 1e-5
@@ -112,7 +114,7 @@ class VariationParams:
                     raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
                 continue
-            if f.name in ("clearance_sites", "clearance_site_object"):
+            if f.name in ("clearance_sites", "clearance_site_object", "backward_sweep"):
                 if not isinstance(value, bool):
                     raise InputError(f"{f.name}: expected true or false, found {value!r}")
                 continue

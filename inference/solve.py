@@ -33,6 +33,7 @@ from .graph import build_graph, factor_covariances, initial_values, key_j, key_w
 from .joint_limits import JointLimitSites
 from .model import VariationModel
 from .params import VariationParams
+from .sweep import backward_sweep, penetrating_steps
 
 __all__ = ["solve", "optimize", "conditional_marginals"]
 
@@ -88,6 +89,17 @@ def solve(
     values = initial_values(traj, mu_o, fixed_object=True)
     graph = graph_at()
     values, iterations, converged = optimize(graph, values, params, on_iteration=on_iteration)
+    stuck = None
+    if clearance is not None and params.backward_sweep:
+        stuck = penetrating_steps(clearance, mu_o, values, n)
+    if stuck is not None and stuck.any():  # a start from the grasp backwards (inference.sweep)
+        sweep_start = backward_sweep(traj, params, cov_f1, mu_o, clearance, values)
+        swept, its, swept_converged = optimize(graph, sweep_start, params, on_iteration=on_iteration)
+        iterations += its
+        fewer = int(penetrating_steps(clearance, mu_o, swept, n).sum())
+        log.info("solve: %d steps penetrate from tau_r, %d from the backward sweep", stuck.sum(), fewer)
+        if fewer < stuck.sum():
+            values, converged = swept, swept_converged
     if sites or clearance_sites:  # expectation propagation, each update followed by a warm-started solve
         for _ in range(params.joint_limit_max_iterations):
             change_j = change_c = 0.0
