@@ -134,8 +134,11 @@ class _PartSites:
     def __init__(self, clearance: ClearanceFn, n: int, T_world_object: np.ndarray, params: VariationParams):
         self.clearance = clearance
         self.T_world_object = T_world_object
-        self.tau = np.zeros((n, clearance.dim))  # site precisions [1/m^2]
-        self.nu = np.zeros((n, clearance.dim))  # site precision x mean [1/m]
+        self.group = _row_groups(clearance)  # (dim,) each row's group
+        self.softmin_m = params.clearance_site_softmin_mm * 1e-3
+        g = int(self.group.max()) + 1 if len(self.group) else 0
+        self.tau = np.zeros((n, g))  # site precisions [1/m^2]
+        self.nu = np.zeros((n, g))  # site precision x mean [1/m]
         self.at: tuple = ()  # (W (T, 4, 4), J (T, 13), margins (T, dim), H (T, dim, 19)) of the last update
         self.min_probability = params.clearance_site_min_probability
 
@@ -151,7 +154,8 @@ class _PartSites:
         """One update of this part's sites at wrists ``W`` and joints ``J`` (:meth:`ClearanceSites.update`)
         with ``damping``; False when no row needs a site."""
         m, _, H_W, H_J = self.clearance(self.T_world_object, W, J, jacobians=True)
-        H = np.concatenate([H_W, H_J], axis=-1)  # (T, dim, 19)
+        m, H = _softmin(m, np.concatenate([H_W, H_J], axis=-1), self.group, self.tau.shape[1], self.softmin_m,
+                        self.clearance.active_margin_m)  # fmt: skip
         self.at = (W, J, m, H)
         v = np.einsum("tij,tjk,tik->ti", H, covs, H)
         exact = (m < self.clearance.active_margin_m) & (v > 0)
@@ -176,3 +180,35 @@ class _PartSites:
         self.nu[todo] = (1 - damping) * self.nu[todo] + damping * nu_new
         self.nu[self.tau <= 0] = 0.0
         return True
+
+
+def _row_groups(clearance: ClearanceFn) -> np.ndarray:
+    """(dim,) a group per row: a :class:`~inference.clearance.HandClearance`'s sphere rows by link and its
+    self rows by pair of links (the spheres of one link overlap, and a site on each would count the same
+    truncation several times); any other clearance's rows one each."""
+    cover = getattr(clearance, "cover", None)
+    if cover is None:
+        return np.arange(clearance.dim)
+    links = cover.group_of
+    pairs = clearance._pair_link_pair if len(clearance.self_pairs) else np.zeros(0, dtype=int)
+    return np.concatenate([links, links.max() + 1 + pairs])
+
+
+def _softmin(m, H, group, n_groups: int, s: float, reach: float):
+    """Per step and group the soft minimum ``-s log sum exp(-m_i / s)`` of the exact rows (margins below
+    ``reach``) and its Jacobian ``sum w_i H_i`` (w the soft-min weights); groups without an exact row get
+    ``reach`` and a zero Jacobian. ``m`` (T, dim), ``H`` (T, dim, 19) -> (T, G), (T, G, 19)."""
+    T = m.shape[0]
+    exact = m < reach
+    m_min = np.full((T, n_groups), np.inf)
+    np.minimum.at(m_min, (slice(None), group), np.where(exact, m, np.inf))
+    has = np.isfinite(m_min)
+    base = np.where(has, m_min, 0.0)[:, group]
+    e = np.where(exact, np.exp(-(np.where(exact, m, 0.0) - base) / s), 0.0)
+    z = np.zeros((T, n_groups))
+    np.add.at(z, (slice(None), group), e)
+    m_g = np.where(has, np.where(has, m_min, 0.0) - s * np.log(np.where(has, z, 1.0)), reach)
+    w = e / np.where(has, z, 1.0)[:, group]
+    H_g = np.zeros((T, n_groups, H.shape[-1]))
+    np.add.at(H_g, (slice(None), group), w[..., None] * H)
+    return m_g, H_g

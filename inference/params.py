@@ -35,6 +35,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     clearance_site_reach_mm: 50.0         # margins up to this are evaluated exactly for the sites
     clearance_site_damping: 0.5           # fraction of a site update applied (natural parameters)
     clearance_site_object: false          # also the grasped object's clearance (true: the grasps stand off)
+    clearance_site_softmin_mm: 1.0        # one site per link: the soft minimum of its spheres' margins
     backward_sweep: true                  # a solve that leaves a link in the scene: retry from the grasp back
     clearance_site_tolerance: 0.1         # stop when no step's marginal mean or std moves more, in its stds
     # GTSAM's Levenberg-Marquardt (section VI: the optimizer relinearizes every factor per iteration)
@@ -94,6 +95,7 @@ class VariationParams:
     clearance_site_reach_mm: float = 50.0
     clearance_site_damping: float = 0.5
     clearance_site_object: bool = False
+    clearance_site_softmin_mm: float = 1.0
     backward_sweep: bool = True
     clearance_site_tolerance: float = 0.1
     max_iterations: int = 100

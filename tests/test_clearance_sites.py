@@ -98,3 +98,27 @@ def ham_arc_clearance():
     W[:, :3, 3] = rng.uniform([-0.1, -0.1, 0.05], [0.1, 0.15, 0.25], size=(20, 3))
     J = rest_joints() + rng.normal(0, 0.2, size=(20, 13))
     return clearance, scene.T_world_object, W, J
+
+
+def test_a_links_soft_minimum_and_its_jacobian():
+    """The group margin is the soft minimum of its exact rows (brute force), within ``s log k`` below their
+    minimum, and its Jacobian is the soft minimum's derivative along any direction (central differences of
+    rows linear in a 19-vector); a group without an exact row gets the reach and no Jacobian."""
+    from inference.clearance_sites import _softmin
+
+    rng = np.random.default_rng(3)
+    group = np.array([0, 0, 0, 1, 2, 2])
+    m0 = np.array([[0.004, 0.006, 0.02, 0.3, 0.001, 0.5]])  # row 3 and row 5 beyond the reach (0.1)
+    H = rng.normal(size=(1, 6, 19))
+    s, reach = 0.002, 0.1
+    m_g, H_g = _softmin(m0, H, group, 3, s, reach)
+    brute = -s * np.log(np.exp(-m0[0, :3] / s).sum())
+    assert m_g[0, 0] == pytest.approx(brute, abs=1e-15)
+    assert m0[0, :3].min() - s * np.log(3) <= m_g[0, 0] <= m0[0, :3].min()
+    assert m_g[0, 1] == reach and not H_g[0, 1].any()
+    assert m_g[0, 2] == pytest.approx(0.001, abs=1e-15)  # one exact row: itself
+    d = rng.normal(size=19)
+    h = 1e-7
+    plus = _softmin(m0 + h * (H @ d), H, group, 3, s, reach)[0]
+    minus = _softmin(m0 - h * (H @ d), H, group, 3, s, reach)[0]
+    np.testing.assert_allclose((plus - minus)[0, [0, 2]] / (2 * h), (H_g @ d)[0, [0, 2]], rtol=1e-6)
