@@ -25,7 +25,7 @@ from scipy.special import ndtr
 from assets.se3 import se3_inverse, se3_log
 
 from .clearance import ClearanceFn
-from .graph import key_j, key_w
+from .graph import key_j, key_w, means_of
 from .joint_limits import truncated_normal_moments
 from .params import VariationParams
 
@@ -64,7 +64,7 @@ class ClearanceSites:
         self.parts = [_PartSites(p, n, T, params) for p in parts]
         self.damping = params.clearance_site_damping
         self.updates = 0
-        self._last: tuple | None = None  # (W, J, stds) of the last update
+        self._last: tuple | None = None  # (W, J, stds) of the last update, where the sites are linearized
 
     DAMPING_HALF_LIFE = 10  # [updates] the damping halves after this many updates, a third after twice
 
@@ -78,10 +78,6 @@ class ClearanceSites:
             out |= np.any(part.tau > 0, axis=1)
         return out
 
-    def count(self) -> int:
-        """How many rows have a site."""
-        return int(sum(np.count_nonzero(part.tau > 0) for part in self.parts))
-
     def add_to(self, graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
         """``graph`` plus, per step with sites, one linear factor ``N(margin_i; nu_i / tau_i, 1 / tau_i)``
         over its site rows, linearized where the sites were last updated."""
@@ -89,7 +85,7 @@ class ClearanceSites:
             rows = [part.rows(int(t)) for part in self.parts]
             A = np.concatenate([r[0] for r in rows])
             b = np.concatenate([r[1] for r in rows])
-            W, J = self.parts[0].at[0][t], self.parts[0].at[1][t]
+            W, J = self._last[0][t], self._last[1][t]
             factor = gtsam.JacobianFactor(
                 key_w(int(t)),
                 np.asfortranarray(A[:, :6]),
@@ -111,8 +107,7 @@ class ClearanceSites:
         0 when no row needs a site). The damping decays with the updates (``DAMPING_HALF_LIFE``): the
         margins are relinearized at each one, and a constant damping leaves the means jittering by some
         0.2 std."""
-        W = np.stack([values.atPose3(key_w(t)).matrix() for t in range(self.n)])
-        J = np.stack([values.atVector(key_j(t)) for t in range(self.n)])
+        W, J = means_of(values, self.n)
         damping = self.damping / (1.0 + self.updates / self.DAMPING_HALF_LIFE)
         self.updates += 1
         any_site = [part.update(W, J, covs, damping) for part in self.parts]
@@ -139,7 +134,7 @@ class _PartSites:
         g = int(self.group.max()) + 1 if len(self.group) else 0
         self.tau = np.zeros((n, g))  # site precisions [1/m^2]
         self.nu = np.zeros((n, g))  # site precision x mean [1/m]
-        self.at: tuple = ()  # (W (T, 4, 4), J (T, 13), margins (T, dim), H (T, dim, 19)) of the last update
+        self.at: tuple = ()  # (margins (T, G), H (T, G, 19)) of the groups at the last update
         self.min_probability = params.clearance_site_min_probability
 
     def rows(self, t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +142,7 @@ class _PartSites:
         ``dx`` from the point of the last update."""
         rows = np.flatnonzero(self.tau[t] > 0)
         s = np.sqrt(self.tau[t, rows])
-        margins, H = self.at[2][t], self.at[3][t]
+        margins, H = self.at[0][t], self.at[1][t]
         return s[:, None] * H[rows], self.nu[t, rows] / s - s * margins[rows]  # b: sqrt(tau) (mean - margin)
 
     def update(self, W: np.ndarray, J: np.ndarray, covs: np.ndarray, damping: float) -> bool:
@@ -156,7 +151,7 @@ class _PartSites:
         m, _, H_W, H_J = self.clearance(self.T_world_object, W, J, jacobians=True)
         m, H = _softmin(m, np.concatenate([H_W, H_J], axis=-1), self.group, self.tau.shape[1], self.softmin_m,
                         self.clearance.active_margin_m)  # fmt: skip
-        self.at = (W, J, m, H)
+        self.at = (m, H)
         v = np.einsum("tij,tjk,tik->ti", H, covs, H)
         exact = (m < self.clearance.active_margin_m) & (v > 0)
         self.tau[~exact] = 0.0  # a row that left the reach (or has no Jacobian) loses its site
