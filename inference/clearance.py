@@ -118,6 +118,13 @@ class HandClearance:
         bare.clearance_m = bare.object_clearance_m = bare.self_clearance_m = 0.0
         return bare(T_world_object, T_world_wrist, joints).min(axis=-1)
 
+    def row_links(self) -> np.ndarray:
+        """(dim,) per row, the link of its sphere (the cover's groups) or, for a self row, ``n_links +`` the
+        index of its pair of links."""
+        links = self.cover.group_of
+        pairs = self._pair_link_pair if len(self.self_pairs) else np.zeros(0, dtype=int)
+        return np.concatenate([links, links.max() + 1 + pairs])
+
     def parts(self, with_object: bool = True) -> list[HandClearance]:
         """One clearance per constraint source, each row of which is one smooth function: one per environment
         field and one for the object (their sphere rows; no self rows), and one of the self pairs (its rows

@@ -178,15 +178,11 @@ class _PartSites:
 
 
 def _row_groups(clearance: ClearanceFn) -> np.ndarray:
-    """(dim,) a group per row: a :class:`~inference.clearance.HandClearance`'s sphere rows by link and its
-    self rows by pair of links (the spheres of one link overlap, and a site on each would count the same
-    truncation several times); any other clearance's rows one each."""
-    cover = getattr(clearance, "cover", None)
-    if cover is None:
-        return np.arange(clearance.dim)
-    links = cover.group_of
-    pairs = clearance._pair_link_pair if len(clearance.self_pairs) else np.zeros(0, dtype=int)
-    return np.concatenate([links, links.max() + 1 + pairs])
+    """(dim,) a group per row: :meth:`inference.clearance.HandClearance.row_links` (the spheres of one link
+    overlap, and a site on each would count the same truncation several times); any other clearance's rows
+    one each."""
+    row_links = getattr(clearance, "row_links", None)
+    return np.arange(clearance.dim) if row_links is None else row_links()
 
 
 def _softmin(m, H, group, n_groups: int, s: float, reach: float):
