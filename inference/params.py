@@ -20,7 +20,8 @@ Every field has the paper's default (or a documented choice where the paper is s
     smoothness_std_config: null
     # clearance factors f_3t, f_4t (section V-B), used only with a scene: hinges on the clearance
     clearance_mm: 10.0                    # of the hand's spheres from the table and the obstacles
-    object_clearance_mm: 3.0              # from the grasped object (8: no valid chips or salt grasp)
+    precision_object_clearance_mm: 6.0    # from the grasped object, precision grasps: the pads close onto it
+    power_object_clearance_mm: 3.0        # power grasps: palm and phalanges near it (8: no chips grasp)
     self_clearance_mm: 2.0                # between spheres of phalanges of different fingers
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     hinge_smoothing_mm: 0.5               # the hinge's smoothing length (inference.factors.clearance_error)
@@ -82,7 +83,8 @@ class VariationParams:
     sigma_m_std_config: tuple[float, ...] | None = field(default=None)
     smoothness_std_config: tuple[float, ...] | None = field(default=None)
     clearance_mm: float = 10.0
-    object_clearance_mm: float = 3.0
+    precision_object_clearance_mm: float = 6.0
+    power_object_clearance_mm: float = 3.0
     self_clearance_mm: float = 2.0
     constraint_std_mm: float = 2.0
     hinge_smoothing_mm: float = 0.5
@@ -137,7 +139,8 @@ class VariationParams:
             allow_zero = f.name in (
                 "joint_floor_std_deg",
                 "clearance_mm",
-                "object_clearance_mm",
+                "precision_object_clearance_mm",
+                "power_object_clearance_mm",
                 "self_clearance_mm",
             )
             if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
@@ -157,6 +160,12 @@ class VariationParams:
             get("wrist_position_std_mm") * 1e-3,
             math.radians(get("wrist_rotation_std_deg")),
         )
+
+    def object_clearance_m(self, grasp_type: str) -> float:
+        """The clearance of the hand's spheres from the grasped object [m] for a grasp type."""
+        if grasp_type not in ("precision", "power"):
+            raise InputError(f"grasp_type: expected 'precision' or 'power', found {grasp_type!r}")
+        return getattr(self, f"{grasp_type}_object_clearance_mm") * 1e-3
 
     def smoothness_stds(self) -> np.ndarray:
         """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""

@@ -4,8 +4,9 @@
 as P(O), the SAH's joint limits, and clearance factors on the SAH's sphere cover
 (:func:`assets.sphere_cover.hand_sphere_cover`) against the scene's distance fields
 (:func:`planning.scene_fields.scene_fields`): ``params.clearance_mm`` from the table and the obstacles,
-``params.object_clearance_mm`` from the grasped object (our addition: the paper constrains the
-environment; without the object the smoothing pulls the last steps' fingers into it) and
+``params.precision_object_clearance_mm`` or ``params.power_object_clearance_mm`` from the grasped object,
+by the trajectory's grasp type (our addition: the paper constrains the environment; without the object the
+smoothing pulls the last steps' fingers into it) and
 ``params.self_clearance_mm`` between the phalanges of different fingers. The CLI (``infer``, ``inspect``),
 the Table I runner and the bench build scene models through here.
 """
@@ -30,12 +31,20 @@ __all__ = ["scene_clearance", "learn_in_scene"]
 
 
 def scene_clearance(
-    scene: Scene, params: VariationParams | None = None, cache_dir: str | os.PathLike | None = None
+    scene: Scene,
+    params: VariationParams | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    *,
+    grasp_type: str,
 ) -> HandClearance:
     """The SAH's clearance margins in ``scene`` with the clearances of ``params``.
 
     Args:
         cache_dir: where mesh fields are cached (None: in memory only).
+        grasp_type: ``precision`` or ``power``, the strategy's: it selects the object clearance.
+
+    Raises:
+        InputError: an unknown grasp type.
     """
     params = params or VariationParams()
     fields = scene_fields(scene, cache_dir)
@@ -44,7 +53,7 @@ def scene_clearance(
         fields.environment,
         fields.object_field,
         clearance_m=params.clearance_mm * 1e-3,
-        object_clearance_m=params.object_clearance_mm * 1e-3,
+        object_clearance_m=params.object_clearance_m(grasp_type),
         self_clearance_m=params.self_clearance_mm * 1e-3,
         rest_joints=rest_joints(),
         active_margin_m=HINGE_CUTOFF * params.hinge_smoothing_mm * 1e-3,
@@ -66,7 +75,7 @@ def learn_in_scene(
         params,
         T_world_object=scene.T_world_object,
         cov_object=scene.cov_object,
-        clearance=scene_clearance(scene, params, cache_dir),
+        clearance=scene_clearance(scene, params, cache_dir, grasp_type=traj.grasp_type),
         joint_limits=JOINT_LIMITS,
         on_iteration=on_iteration,
     )

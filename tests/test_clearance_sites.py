@@ -92,7 +92,7 @@ def ham_arc_clearance():
     from planning.scene import load_scene
 
     scene = load_scene("ham_arc")
-    clearance = scene_clearance(scene, VariationParams())
+    clearance = scene_clearance(scene, VariationParams(), grasp_type="precision")
     rng = np.random.default_rng(1)
     W = np.tile(np.eye(4), (20, 1, 1))
     W[:, :3, 3] = rng.uniform([-0.1, -0.1, 0.05], [0.1, 0.15, 0.25], size=(20, 3))

@@ -278,6 +278,25 @@ def test_modeling_covariance_with_the_sah_jacobian_is_positive_definite():
     assert np.linalg.eigvalsh(cov).min() > 0
 
 
+def test_the_object_clearance_follows_the_grasp_type():
+    """Precision strategies keep 6 mm from the grasped object, power strategies 3 mm (params.py); the scene's
+    clearance takes the strategy's."""
+    from pbdgrasp.scene_model import scene_clearance
+    from planning.scene import load_scene
+
+    p = VariationParams()
+    assert p.object_clearance_m("precision") == pytest.approx(0.006)
+    assert p.object_clearance_m("power") == pytest.approx(0.003)
+    with pytest.raises(InputError, match="grasp_type"):
+        p.object_clearance_m("pinch")
+    scene = load_scene("ham")
+    params = VariationParams(precision_object_clearance_mm=4.5)
+    assert scene_clearance(scene, params, grasp_type="precision").object_clearance_m == pytest.approx(0.0045)
+    assert scene_clearance(scene, params, grasp_type="power").object_clearance_m == pytest.approx(0.003)
+    with pytest.raises(InputError, match="power_object_clearance_mm"):
+        VariationParams(power_object_clearance_mm=-1.0)
+
+
 def test_params_yaml_roundtrip_and_errors(tmp_path):
     path = tmp_path / "p.yaml"
     path.write_text("smooth_position_std_mm: 20\nsmoothness_std_config: null\nmax_iterations: 5\n")

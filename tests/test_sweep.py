@@ -53,7 +53,7 @@ def test_the_sweep_takes_the_means_out_of_the_wall(ham_arc_models):
     assert len(stuck) and 48 in stuck
     assert len(_wall_steps(scene, swept)) == 0
     assert swept.converged
-    clearance = scene_clearance(scene)
+    clearance = scene_clearance(scene, grasp_type=swept.grasp_type)
     W = scene.T_world_object @ swept.T_object_wrist_mean
     assert clearance.penetration(scene.T_world_object, W, swept.joints_mean).min() > -2e-3
     moved = np.linalg.norm(swept.T_object_wrist_mean[-1, :3, 3] - plain.T_object_wrist_mean[-1, :3, 3])
