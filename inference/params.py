@@ -188,6 +188,9 @@ class VariationParams:
     def from_dict(cls, data: dict | None, path=None) -> VariationParams:
         """Parameters from a mapping of field names; missing names keep their defaults.
 
+        The former ``object_clearance_mm`` (one clearance for both grasp types) sets both
+        ``precision_object_clearance_mm`` and ``power_object_clearance_mm``, so older files load unchanged.
+
         Raises:
             InputError: not a mapping, an unknown name, or an invalid value.
         """
@@ -197,6 +200,11 @@ class VariationParams:
             raise InputError(
                 f"parameters: expected a mapping of names to values, found {type(data).__name__}", path
             )
+        if "object_clearance_mm" in data:  # the one object clearance of files written before 2026-12-04
+            data = dict(data)
+            value = data.pop("object_clearance_mm")
+            for name in ("precision_object_clearance_mm", "power_object_clearance_mm"):
+                data.setdefault(name, value)
         names = [f.name for f in dataclasses.fields(cls)]
         unknown = sorted(set(data) - set(names), key=str)
         if unknown:

@@ -295,6 +295,9 @@ def test_the_object_clearance_follows_the_grasp_type():
     assert scene_clearance(scene, params, grasp_type="power").object_clearance_m == pytest.approx(0.003)
     with pytest.raises(InputError, match="power_object_clearance_mm"):
         VariationParams(power_object_clearance_mm=-1.0)
+    legacy = VariationParams.from_dict({"object_clearance_mm": 3.0})  # files written before the split
+    assert legacy.object_clearance_m("precision") == pytest.approx(0.003)
+    assert legacy.object_clearance_m("power") == pytest.approx(0.003)
 
 
 def test_params_yaml_roundtrip_and_errors(tmp_path):
