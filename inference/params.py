@@ -20,7 +20,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     smoothness_std_config: null
     # clearance factors f_3t, f_4t (section V-B), used only with a scene: hinges on the clearance
     clearance_mm: 10.0                    # of the hand's spheres from the table and the obstacles
-    precision_object_clearance_mm: 6.0    # from the grasped object, precision grasps: the pads close onto it
+    precision_object_clearance_mm: 3.0    # from the grasped object, precision grasps (6: freer, weaker)
     power_object_clearance_mm: 3.0        # power grasps: palm and phalanges near it (8: no chips grasp)
     self_clearance_mm: 2.0                # between spheres of phalanges of different fingers
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
@@ -83,7 +83,7 @@ class VariationParams:
     sigma_m_std_config: tuple[float, ...] | None = field(default=None)
     smoothness_std_config: tuple[float, ...] | None = field(default=None)
     clearance_mm: float = 10.0
-    precision_object_clearance_mm: float = 6.0
+    precision_object_clearance_mm: float = 3.0
     power_object_clearance_mm: float = 3.0
     self_clearance_mm: float = 2.0
     constraint_std_mm: float = 2.0

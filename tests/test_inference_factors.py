@@ -279,14 +279,16 @@ def test_modeling_covariance_with_the_sah_jacobian_is_positive_definite():
 
 
 def test_the_object_clearance_follows_the_grasp_type():
-    """Precision strategies keep 6 mm from the grasped object, power strategies 3 mm (params.py); the scene's
-    clearance takes the strategy's."""
+    """Each grasp type has its own clearance from the grasped object (3 mm by default for both,
+    params.py); the scene's clearance takes the strategy's."""
     from pbdgrasp.scene_model import scene_clearance
     from planning.scene import load_scene
 
     p = VariationParams()
-    assert p.object_clearance_m("precision") == pytest.approx(0.006)
-    assert p.object_clearance_m("power") == pytest.approx(0.003)
+    assert p.object_clearance_m("precision") == pytest.approx(0.003)
+    wider = VariationParams(precision_object_clearance_mm=6.0)
+    assert wider.object_clearance_m("precision") == pytest.approx(0.006)
+    assert wider.object_clearance_m("power") == pytest.approx(0.003)
     with pytest.raises(InputError, match="grasp_type"):
         p.object_clearance_m("pinch")
     scene = load_scene("ham")
