@@ -4,14 +4,16 @@ and how many of the last step's close to a valid grasp.
 :func:`inspect_model` draws ``n`` configurations per step from P(X_t | O) with O ~ P(O) (the planner's
 draws, :meth:`planning.grasp_planner.GraspPlanner.draw_marginal`, joints clipped to the SAH's limits),
 checks each with the planner's collision checker (pybullet: every link against the table, the object, the
-obstacles and the hand itself; for the colliding ones, which of them it penetrates), and closes the hand
-at each of the last step's draws (GraspIt!'s autograsp and the L1 epsilon quality,
-:mod:`planning.autograsp`). The model is placed in the scene's object pose, as the planner places it.
+obstacles and the hand itself; for the colliding ones, which of them it penetrates and with which links),
+and closes the hand at each of the last step's draws (GraspIt!'s autograsp and the L1 epsilon quality,
+:mod:`planning.autograsp`): the valid fraction of all of them and of the free ones tells a weak grasp from
+draws that collide. The model is placed in the scene's object pose, as the planner places it.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -38,7 +40,11 @@ class Inspection:
         hits: what the colliding draws penetrate, per step the fraction of draws (T,) each: ``object``
             (the grasped object), ``environment`` (table and obstacles) and ``self`` (the hand itself); a
             draw can count in more than one.
+        links: per step, the fraction of draws in which each hand link penetrates something (only the
+            links that do in some draw), the most frequent first.
         valid_fraction: the fraction of the last step's draws whose closed grasp has epsilon >= ``epsilon``.
+        valid_of_free: the same among the last step's collision-free draws (NaN if none is free): low
+            where the grasp itself is weak, high where the draws fail by collision.
         best_epsilon: the best epsilon of those grasps.
         epsilon: the validity threshold.
         iterations, converged, solve_time_s: the model's solve (:class:`~inference.model.VariationModel`).
@@ -50,7 +56,9 @@ class Inspection:
     draws: int
     free_fraction: tuple[float, ...]
     hits: dict[str, tuple[float, ...]]
+    links: tuple[dict[str, float], ...]
     valid_fraction: float
+    valid_of_free: float
     best_epsilon: float
     epsilon: float
     iterations: int
@@ -59,22 +67,33 @@ class Inspection:
     constrained_steps: int
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2)
+        """The measurements as JSON; ``valid_of_free`` is null where no last-step draw was free."""
+        d = asdict(self)
+        if math.isnan(d["valid_of_free"]):
+            d["valid_of_free"] = None
+        return json.dumps(d, indent=2)
 
     def summary(self) -> str:
         """A few lines for the terminal: the model, the worst step and the last step."""
         free = np.asarray(self.free_fraction)
         worst = int(np.argmin(free))
+        of_free = (
+            "no draw free" if math.isnan(self.valid_of_free) else f"{self.valid_of_free:.0%} of the free ones"
+        )
         lines = [
             f"model: {self.iterations} iterations, {'converged' if self.converged else 'NOT converged'}, "
             f"solve {self.solve_time_s:.1f} s, {self.constrained_steps} constrained steps",
             f"collision-free draws ({self.draws} per step): min {free.min():.0%} at step {worst}, "
             f"mean {free.mean():.0%}, last step {free[-1]:.0%}",
             f"at step {worst} the draws penetrate: "
-            + ", ".join(f"{name} {self.hits[name][worst]:.0%}" for name in HIT_KINDS),
-            f"last step: {self.valid_fraction:.0%} close to a valid grasp (epsilon >= {self.epsilon:g}), "
-            f"best epsilon {self.best_epsilon:.3f}",
+            + ", ".join(f"{name} {self.hits[name][worst]:.0%}" for name in HIT_KINDS)
+            + _top_links(self.links[worst]),
+            f"last step: {self.valid_fraction:.0%} close to a valid grasp (epsilon >= {self.epsilon:g}; "
+            f"{of_free}), best epsilon {self.best_epsilon:.3f}",
         ]
+        last = len(free) - 1
+        if worst != last and self.links[last]:
+            lines.append(f"at the last step {_top_links(self.links[last])[2:]}")
         below = np.flatnonzero(free < 0.5)
         if below.size:
             lines.append(f"steps below 50 % free: {_ranges(below)}")
@@ -95,26 +114,36 @@ def inspect_model(
         raise InputError(f"epsilon: expected a quality in (0, 1), found {epsilon}")
     with GraspPlanner(scene, [model]) as planner:
         world = planner.checker.world
-        free, hits = [], {name: [] for name in HIT_KINDS}
+        free, hits, links = [], {name: [] for name in HIT_KINDS}, []
         for t in range(model.num_steps):
             q = planner.draw_marginal(None, draws, rng, k=t)
             is_free = np.array([planner.checker.is_free(x) for x in q])
             counts = dict.fromkeys(HIT_KINDS, 0)
+            link_counts: dict[str, int] = {}
             for x in q[~is_free]:
-                for kind in {_kind(c.other, scene) for c in world.hand_contacts(x) if c.distance_m < 0}:
+                inside = [c for c in world.hand_contacts(x) if c.distance_m < 0]
+                for kind in {_kind(c.other, scene) for c in inside}:
                     counts[kind] += 1
+                for link in {c.link for c in inside}:
+                    link_counts[link] = link_counts.get(link, 0) + 1
             free.append(float(is_free.mean()))
             for name in HIT_KINDS:
                 hits[name].append(counts[name] / draws)
+            ranked = sorted(link_counts.items(), key=lambda kv: (-kv[1], kv[0]))
+            links.append({link: n / draws for link, n in ranked})
         last = planner.draw_marginal(1, draws, rng)
-        qualities = np.array([planner.quality(x)[0] for x in last])
+        grasps = [planner.quality(x)[1] for x in last]
+    qualities = np.array([g.quality for g in grasps])
+    last_free = ~np.array([g.in_collision for g in grasps])
     return Inspection(
         scene=scene.name,
         object=model.object,
         draws=int(draws),
         free_fraction=tuple(free),
         hits={name: tuple(v) for name, v in hits.items()},
+        links=tuple(links),
         valid_fraction=float(np.mean(qualities >= epsilon)),
+        valid_of_free=float(np.mean(qualities[last_free] >= epsilon)) if last_free.any() else float("nan"),
         best_epsilon=float(qualities.max()),
         epsilon=float(epsilon),
         iterations=int(model.iterations),
@@ -122,6 +151,13 @@ def inspect_model(
         solve_time_s=float(model.solve_time_s),
         constrained_steps=int(np.sum(model.constrained)),
     )
+
+
+def _top_links(links: dict[str, float], n: int = 3) -> str:
+    """``'; links inside: a 24%, b 20%, c 18%'`` for the ``n`` most frequent, or ``''``."""
+    if not links:
+        return ""
+    return "; links inside: " + ", ".join(f"{link} {f:.0%}" for link, f in list(links.items())[:n])
 
 
 def _kind(other: str, scene: Scene) -> str:

@@ -50,11 +50,18 @@ def test_point_marginals_give_the_collision_state_and_grasp_of_the_means(point_m
         closed = HandCloser(world).close(_mean_q(point_model, STEPS - 1))
     assert result.free_fraction == tuple(expected)
     assert 0.0 < np.mean(expected) and expected[0] == 1.0  # the approach starts free
-    for t in range(STEPS):  # a colliding mean collides in every draw, with something named
+    with World(scene) as world:
+        inside = [
+            {c.link for c in world.hand_contacts(_mean_q(point_model, t)) if c.distance_m < 0}
+            for t in range(STEPS)
+        ]
+    for t in range(STEPS):  # a colliding mean collides in every draw, with something named, by its links
         hit = max(result.hits[kind][t] for kind in result.hits)
         assert hit == pytest.approx(1.0 - expected[t])
+        assert result.links[t] == dict.fromkeys(sorted(inside[t]), 1.0)
     assert closed.quality >= 0.05
     assert result.valid_fraction == 1.0 and result.best_epsilon == pytest.approx(closed.quality, abs=2e-3)
+    assert result.valid_of_free == 1.0
     assert result.converged and result.draws == 6 and len(result.free_fraction) == STEPS
 
 
@@ -65,7 +72,9 @@ def test_a_model_through_the_table_collides_with_the_table_in_every_draw(point_m
     result = inspect_model(sunk, quiet_ham, 4, np.random.default_rng(1))
     assert result.free_fraction == (0.0,) * STEPS
     assert result.hits["environment"] == (1.0,) * STEPS
-    assert "environment 100%" in result.summary()
+    assert "environment 100%" in result.summary() and "no draw free" in result.summary()
+    assert np.isnan(result.valid_of_free) and json.loads(result.to_json())["valid_of_free"] is None
+    assert all(result.links[t] and set(result.links[t].values()) == {1.0} for t in range(STEPS))
 
 
 def test_cli_json_plot_and_a_bad_draw_count(point_model, tmp_path, capsys):
