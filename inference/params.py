@@ -22,7 +22,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     clearance_mm: 10.0                    # of the hand's spheres from the table and the obstacles
     precision_object_clearance_mm: 3.0    # from the grasped object, precision grasps (6: freer, weaker)
     power_object_clearance_mm: 3.0        # power grasps: palm and phalanges near it (8: no chips grasp)
-    self_clearance_mm: 2.0                # between spheres of phalanges of different fingers
+    self_clearance_mm: 5.0                # between spheres of phalanges of different fingers (was 2)
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     hinge_smoothing_mm: 0.5               # the hinge's smoothing length (inference.factors.clearance_error)
     # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
@@ -85,7 +85,7 @@ class VariationParams:
     clearance_mm: float = 10.0
     precision_object_clearance_mm: float = 3.0
     power_object_clearance_mm: float = 3.0
-    self_clearance_mm: float = 2.0
+    self_clearance_mm: float = 5.0
     constraint_std_mm: float = 2.0
     hinge_smoothing_mm: float = 0.5
     joint_limit_min_probability: float = 1e-4
