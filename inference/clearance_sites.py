@@ -194,11 +194,11 @@ def _softmin(m, H, group, n_groups: int, s: float, reach: float):
     m_min = np.full((T, n_groups), np.inf)
     np.minimum.at(m_min, (slice(None), group), np.where(exact, m, np.inf))
     has = np.isfinite(m_min)
-    base = np.where(has, m_min, 0.0)[:, group]
-    e = np.where(exact, np.exp(-(np.where(exact, m, 0.0) - base) / s), 0.0)
+    m_min = np.where(has, m_min, 0.0)
+    e = np.where(exact, np.exp(-(np.where(exact, m, 0.0) - m_min[:, group]) / s), 0.0)
     z = np.zeros((T, n_groups))
     np.add.at(z, (slice(None), group), e)
-    m_g = np.where(has, np.where(has, m_min, 0.0) - s * np.log(np.where(has, z, 1.0)), reach)
+    m_g = np.where(has, m_min - s * np.log(np.where(has, z, 1.0)), reach)
     w = e / np.where(has, z, 1.0)[:, group]
     H_g = np.zeros((T, n_groups, H.shape[-1]))
     np.add.at(H_g, (slice(None), group), w[..., None] * H)

@@ -152,20 +152,25 @@ class VariationParams:
     # -- derived quantities in SI ------------------------------------------------------------------------
     def modeling_stds(self, grasp_type: str) -> tuple[float, float, float]:
         """``(fingertip_std_m, wrist_position_std_m, wrist_rotation_std_rad)`` of Sigma_m for a grasp type."""
-        if grasp_type not in ("precision", "power"):
-            raise InputError(f"grasp_type: expected 'precision' or 'power', found {grasp_type!r}")
-        get = lambda name: getattr(self, f"{grasp_type}_{name}")  # noqa: E731
         return (
-            get("fingertip_std_mm") * 1e-3,
-            get("wrist_position_std_mm") * 1e-3,
-            math.radians(get("wrist_rotation_std_deg")),
+            self._of_grasp_type(grasp_type, "fingertip_std_mm") * 1e-3,
+            self._of_grasp_type(grasp_type, "wrist_position_std_mm") * 1e-3,
+            math.radians(self._of_grasp_type(grasp_type, "wrist_rotation_std_deg")),
         )
 
     def object_clearance_m(self, grasp_type: str) -> float:
         """The clearance of the hand's spheres from the grasped object [m] for a grasp type."""
+        return self._of_grasp_type(grasp_type, "object_clearance_mm") * 1e-3
+
+    def _of_grasp_type(self, grasp_type: str, name: str) -> float:
+        """The field ``<grasp_type>_<name>``.
+
+        Raises:
+            InputError: ``grasp_type`` is neither ``precision`` nor ``power``.
+        """
         if grasp_type not in ("precision", "power"):
             raise InputError(f"grasp_type: expected 'precision' or 'power', found {grasp_type!r}")
-        return getattr(self, f"{grasp_type}_object_clearance_mm") * 1e-3
+        return getattr(self, f"{grasp_type}_{name}")
 
     def smoothness_stds(self) -> np.ndarray:
         """The 19 stds of S_t, ``[omega (rad), v (m), joints (rad)]``, per trajectory step."""

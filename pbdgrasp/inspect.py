@@ -87,13 +87,13 @@ class Inspection:
             f"mean {free.mean():.0%}, last step {free[-1]:.0%}",
             f"at step {worst} the draws penetrate: "
             + ", ".join(f"{name} {self.hits[name][worst]:.0%}" for name in HIT_KINDS)
-            + _top_links(self.links[worst]),
+            + (f"; {_top_links(self.links[worst])}" if self.links[worst] else ""),
             f"last step: {self.valid_fraction:.0%} close to a valid grasp (epsilon >= {self.epsilon:g}; "
             f"{of_free}), best epsilon {self.best_epsilon:.3f}",
         ]
         last = len(free) - 1
         if worst != last and self.links[last]:
-            lines.append(f"at the last step {_top_links(self.links[last])[2:]}")
+            lines.append(f"at the last step {_top_links(self.links[last])}")
         below = np.flatnonzero(free < 0.5)
         if below.size:
             lines.append(f"steps below 50 % free: {_ranges(below)}")
@@ -154,10 +154,8 @@ def inspect_model(
 
 
 def _top_links(links: dict[str, float], n: int = 3) -> str:
-    """``'; links inside: a 24%, b 20%, c 18%'`` for the ``n`` most frequent, or ``''``."""
-    if not links:
-        return ""
-    return "; links inside: " + ", ".join(f"{link} {f:.0%}" for link, f in list(links.items())[:n])
+    """``'links inside: a 24%, b 20%, c 18%'`` for the ``n`` most frequent of ``links`` (not empty)."""
+    return "links inside: " + ", ".join(f"{link} {f:.0%}" for link, f in list(links.items())[:n])
 
 
 def _kind(other: str, scene: Scene) -> str:
