@@ -44,6 +44,7 @@ __all__ = [
     "clip_joints",
     "fingertip_jacobian",
     "fingertip_marginals",
+    "FINGERTIP_COV_MAPS",
     "config_cov_from_fingertip_cov",
 ]
 
@@ -201,17 +202,40 @@ def fingertip_marginals(
     return mean, 0.5 * (blocks + np.swapaxes(blocks, -1, -2))
 
 
-def config_cov_from_fingertip_cov(J: np.ndarray, cov_tips: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+FINGERTIP_COV_MAPS = ("configuration", "finger_joints")
+"""How :func:`config_cov_from_fingertip_cov` realises a fingertip covariance in the configuration."""
+
+
+def config_cov_from_fingertip_cov(
+    J: np.ndarray, cov_tips: np.ndarray, rcond: float = 1e-10, through: str = "configuration"
+) -> np.ndarray:
     """Map a fingertip covariance into the 19-D configuration tangent: ``J+ cov J+^T``.
 
     Args:
         J: (..., 12, 19) from :func:`fingertip_jacobian`.
         cov_tips: (..., 12, 12) [m^2] covariance of the stacked fingertip positions.
         rcond: relative cut-off of small singular values in the pseudo-inverse.
+        through: ``"configuration"``: the pseudo-inverse of the whole Jacobian, so the wrist and the
+            joints share the fingertip variation (the minimum-norm configuration change per fingertip
+            change, which couples them); ``"finger_joints"``: the pseudo-inverse of the joint columns
+            alone, the wrist held, so the fingertips vary by the fingers' own joints and the wrist rows
+            and columns stay zero (a wrist variance is then stated on its own).
 
     Returns:
         (..., 19, 19) in ``[omega, v, 13 joints]``; rank <= 12, degenerate by design (the paper's Sigma_r).
+
+    Raises:
+        InputError: an unknown ``through``.
     """
-    Jp = np.linalg.pinv(np.asarray(J, dtype=float), rcond=rcond)
+    J = np.asarray(J, dtype=float)
+    if through == "configuration":
+        Jp = np.linalg.pinv(J, rcond=rcond)
+    elif through == "finger_joints":
+        Jp = np.zeros(J.shape[:-2] + (Q_DIM, J.shape[-2]))
+        Jp[..., 6:, :] = np.linalg.pinv(J[..., 6:], rcond=rcond)
+    else:
+        raise assets.InputError(
+            f"through: expected one of {', '.join(FINGERTIP_COV_MAPS)}, found {through!r}"
+        )
     cov = Jp @ np.asarray(cov_tips, dtype=float) @ np.swapaxes(Jp, -1, -2)
     return 0.5 * (cov + np.swapaxes(cov, -1, -2))

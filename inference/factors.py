@@ -332,7 +332,8 @@ def modeling_covariance(
 
     Without ``params.sigma_m_std_config``: the isotropic fingertip covariance (12x12) is mapped to
     configuration space by ``fingertip_map`` (default: ``assets.sah.fingertip_jacobian`` and
-    ``assets.sah.config_cov_from_fingertip_cov``, i.e. ``J+ cov J+^T``), then the wrist rotation and
+    ``assets.sah.config_cov_from_fingertip_cov`` through ``params.fingertip_cov_map``, i.e.
+    ``J+ cov J+^T``), then the wrist rotation and
     position variances are added on the ``[omega, v]`` diagonal. With it: ``diag(std^2)``. In both cases
     ``joint_floor_std^2`` is added to every joint's variance so that Sigma_r + Sigma_m is positive definite
     even in joint directions the fingertips do not see.
@@ -347,12 +348,13 @@ def modeling_covariance(
         cov = np.broadcast_to(np.diag(np.square(params.sigma_m_std_config)), (n, Q_DIM, Q_DIM)).copy()
     else:
         fingertip_std, wrist_pos_std, wrist_rot_std = params.modeling_stds(grasp_type)
+        cov12 = fingertip_std**2 * np.eye(12)
         if fingertip_map is None:
-            fingertip_map = _sah_fingertip_map
-        cov = np.array(
-            fingertip_map(T_object_wrist, np.asarray(joints, dtype=float), fingertip_std**2 * np.eye(12)),
-            dtype=float,
-        )
+            cov = _sah_fingertip_map(
+                T_object_wrist, np.asarray(joints, dtype=float), cov12, params.fingertip_cov_map
+            )
+        else:
+            cov = np.array(fingertip_map(T_object_wrist, np.asarray(joints, dtype=float), cov12), dtype=float)
         if cov.shape != (n, Q_DIM, Q_DIM):
             raise InputError(f"fingertip map: expected shape {(n, 19, 19)}, found {cov.shape}")
         cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -364,7 +366,10 @@ def modeling_covariance(
     return cov
 
 
-def _sah_fingertip_map(T_object_wrist: np.ndarray, joints: np.ndarray, cov12: np.ndarray) -> np.ndarray:
+def _sah_fingertip_map(
+    T_object_wrist: np.ndarray, joints: np.ndarray, cov12: np.ndarray, through: str
+) -> np.ndarray:
     from assets import sah  # imported late: the SAH model is only needed for the default mapping
 
-    return sah.config_cov_from_fingertip_cov(sah.fingertip_jacobian(T_object_wrist, joints), cov12)
+    J = sah.fingertip_jacobian(T_object_wrist, joints)
+    return sah.config_cov_from_fingertip_cov(J, cov12, through=through)

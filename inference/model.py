@@ -161,6 +161,8 @@ class VariationModel:
             params_dict = json.loads(str(d["params_json"]))
         except ValueError as exc:
             raise InputError(f"params_json: not JSON ({exc})", path) from None
+        if isinstance(params_dict, dict):  # models written before the option were mapped so
+            params_dict.setdefault("fingertip_cov_map", "configuration")
         try:
             params = VariationParams.from_dict(params_dict, path)
         except InputError as exc:

@@ -11,6 +11,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     power_wrist_position_std_mm: 15.0     # +10 mm
     power_wrist_rotation_std_deg: 2.0
     joint_floor_std_deg: 1.0              # added to every joint's variance: keeps f_1t positive definite
+    fingertip_cov_map: finger_joints      # the fingertip std through the finger joints (or: configuration)
     # smoothness S_t between consecutive steps (per step of the trajectory, 20 Hz in the demonstrations)
     smooth_position_std_mm: 10.0          # the paper's S_t = 10^2 I mm^2
     smooth_rotation_std_deg: 5.0          # our choice: ~100 deg/s at 20 Hz
@@ -44,10 +45,14 @@ Every field has the paper's default (or a documented choice where the paper is s
     relative_error_tolerance: 1.0e-5      # converged when the error decreases relatively less than this
 
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
-covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian (the same
-way as Sigma_r in retargeting), the wrist stds are added on the ``[omega, v]`` block, and the joint floor on
-the joint block. With ``sigma_m_std_config`` set, Sigma_m is ``diag(sigma_m_std_config^2)`` instead (the
-floor is still added; set ``joint_floor_std_deg: 0`` to state the covariance exactly).
+covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian
+(:func:`assets.sah.config_cov_from_fingertip_cov`): by default of its joint columns alone
+(``fingertip_cov_map: finger_joints``: the fingers' joints carry the fingertip std, the wrist its own stds,
+independent), or of the whole Jacobian (``configuration``: the minimum-norm configuration change, wrist and
+joints coupled; the model files written before 2026-12-04 were made so). The wrist stds are added on the
+``[omega, v]`` block, and the joint floor on the joint block. With ``sigma_m_std_config`` set, Sigma_m
+is ``diag(sigma_m_std_config^2)`` instead (the floor is still added; set ``joint_floor_std_deg: 0`` to
+state the covariance exactly).
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ import yaml
 
 from assets.errors import InputError
 from assets.q_layout import Q_DIM
+from assets.sah import FINGERTIP_COV_MAPS
 
 __all__ = ["VariationParams"]
 
@@ -77,6 +83,7 @@ class VariationParams:
     power_wrist_position_std_mm: float = 15.0
     power_wrist_rotation_std_deg: float = 2.0
     joint_floor_std_deg: float = 1.0
+    fingertip_cov_map: str = "finger_joints"
     smooth_position_std_mm: float = 10.0
     smooth_rotation_std_deg: float = 5.0
     smooth_joint_std_deg: float = 5.0
@@ -117,6 +124,12 @@ class VariationParams:
                 if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
                     raise InputError(f"{f.name}: every std must be finite and > 0, found {arr.tolist()}")
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
+                continue
+            if f.name == "fingertip_cov_map":
+                if value not in FINGERTIP_COV_MAPS:
+                    raise InputError(
+                        f"{f.name}: expected one of {', '.join(FINGERTIP_COV_MAPS)}, found {value!r}"
+                    )
                 continue
             if f.name in ("clearance_sites", "clearance_site_object", "backward_sweep"):
                 if not isinstance(value, bool):

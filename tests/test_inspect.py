@@ -20,10 +20,12 @@ POINT_COV = 1e-14  # [rad^2, m^2]: draws within 1e-7 of the means
 
 @pytest.fixture(scope="module")
 def point_model(ham_top_down_model):
-    """The top-down ham approach ending at the hand-placed grasp, its covariances shrunk to points."""
+    """The top-down ham approach ending at the hand-placed grasp, its marginals shrunk to points on tau_r."""
     model = ham_top_down_model(STEPS)
     return dataclasses.replace(
         model,
+        T_object_wrist_mean=model.source.T_object_wrist,
+        joints_mean=model.source.joints,
         cov=np.repeat(POINT_COV * np.eye(19)[None], STEPS, axis=0),
         cov_object=POINT_COV * np.eye(6),
     )

@@ -171,6 +171,26 @@ def test_config_cov_is_pseudo_inverse_mapping():
     np.testing.assert_allclose(J @ cov @ J.T, cov_tips, atol=1e-9 * 0.008**2 * 1e3)
 
 
+def test_finger_joint_cov_holds_the_wrist_and_maps_back_to_the_fingertip_covariance():
+    rng = np.random.default_rng(4)
+    q = sah.rest_joints()
+    flex = np.array([n.endswith(("_prox", "_mid")) for n in sah.JOINT_NAMES])
+    q[flex] += 0.4  # flexed fingers: each finger's joints reach every direction of its fingertip
+    T = lie.make_pose(lie.so3_exp(rng.normal(size=3)), rng.normal(size=3))
+    J = sah.fingertip_jacobian(T, q)
+    A = rng.normal(size=(12, 12)) * 0.005
+    cov_tips = A @ A.T
+    cov = sah.config_cov_from_fingertip_cov(J, cov_tips, through="finger_joints")
+    assert not cov[:6].any() and not cov[:, :6].any()  # the wrist is held
+    np.testing.assert_allclose(J @ cov @ J.T, cov_tips, atol=1e-9 * np.abs(cov_tips).max())
+    # the closed form of the minimum-norm joint change: Jq^T (Jq Jq^T)^-1, the joint columns alone
+    Jq = J[:, 6:]
+    P = Jq.T @ np.linalg.inv(Jq @ Jq.T)
+    np.testing.assert_allclose(cov[6:, 6:], P @ cov_tips @ P.T, atol=1e-9 * np.abs(cov[6:, 6:]).max())
+    with pytest.raises(assets.InputError, match="through: expected one of configuration, finger_joints"):
+        sah.config_cov_from_fingertip_cov(J, cov_tips, through="wrist")
+
+
 @pytest.mark.parametrize("thumb_base_deg", [0.0, 45.0, 90.0])
 def test_thumb_knuckle_frame_matches_cisst(thumb_base_deg):
     """The thumb's knuckle frame against cisst's ``robSAHThumb`` (``Rb1`` turned by the base rotation).
