@@ -66,18 +66,6 @@ _HAND_SOURCES = (
     "assets/sah.py",
     "assets/human_hand.py",
 )
-RETARGET_SOURCES = (
-    "retarget",
-    *_HAND_SOURCES,
-    "pbdgrasp/strategy.py",
-    "planning/world.py",
-    "planning/hand_urdf.py",
-    "planning/scene.py",
-    "planning/_pybullet.py",
-)
-#: Sources inside those folders that no cached step runs: the demonstration generator only writes the
-#: demonstration files, whose contents are part of the retargeting key.
-UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
 MODEL_SOURCES = (
     "inference",
     "assets/sphere_cover.py",
@@ -90,6 +78,18 @@ MODEL_SOURCES = (
     "planning/_pybullet.py",
     "pbdgrasp/scene_model.py",
 )
+#: The refined final grasp (retarget.final_grasp) solves a variation model and closes the hand, so the
+#: retargeting's key holds the model's code and the closing's too.
+RETARGET_SOURCES = (
+    "retarget",
+    "pbdgrasp/strategy.py",
+    *MODEL_SOURCES,
+    "planning/autograsp.py",
+    "planning/grasp_quality.py",
+)
+#: Sources inside those folders that no cached step runs: the demonstration generator only writes the
+#: demonstration files, whose contents are part of the retargeting key.
+UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
 
 
 def float_kernels() -> str:

@@ -5,7 +5,9 @@
 * :func:`object_frame_is_free`, :func:`object_frame_penetration`: the world's queries with q in the object
   frame, as the retargeting asks them;
 * :func:`grasp_shape`: how a configuration holds the object (the palm's distance, the links touching), which
-  tells a wrap from a fingertip grasp.
+  tells a wrap from a fingertip grasp;
+* :class:`ExpectedQuality`: the objective of the refined final grasp (:mod:`retarget.final_grasp`), the
+  mean epsilon of the hand closed at draws of the strategy's last marginal about a candidate.
 
 The variation model in a scene (sections V-VI) is :func:`pbdgrasp.scene_model.learn_in_scene`. The CLI
 (``retarget``), the Table I runner and the bench retarget through here.
@@ -13,20 +15,25 @@ The variation model in a scene (sections V-VI) is :func:`pbdgrasp.scene_model.le
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 
 import numpy as np
 
+from assets import sah
 from assets.q_layout import POSE
-from assets.se3 import pose_from_q, q_from_pose
+from assets.se3 import pose_from_q, q_from_pose, se3_exp
+from planning.autograsp import HandCloser
 from planning.scene import Scene
 from planning.world import World
 from retarget.demonstration import Demonstration
+from retarget.final_grasp import refine_final_grasp
 from retarget.retargeting import RetargetConfig, RetargetResult, retarget_demonstration
 from retarget.trajectory import Trajectory
 
 __all__ = [
+    "ExpectedQuality",
     "object_frame_is_free",
     "object_frame_penetration",
     "grasp_shape",
@@ -79,6 +86,58 @@ def grasp_shape(world: World, T_world_object: np.ndarray, q_object: np.ndarray) 
     return {"palm_to_object_mm": 1e3 * float(d[0]), "contact_links": int(np.sum(d <= TOUCH_M))}
 
 
+class ExpectedQuality:
+    """``E[phi_o]`` about a configuration: the mean epsilon of the hand closed at ``n`` draws.
+
+    Each draw perturbs the object's pose by ``Sigma_o`` and the configuration by ``cov`` (GTSAM's body
+    tangent ``[omega, v, 13 joints]``, right perturbation; joints clipped to the limits), the draws' standard
+    normals fixed once (common random numbers), so that the value is a deterministic function of the
+    configuration; a draw in collision scores 0. It is :data:`retarget.final_grasp.ExpectedQuality`.
+
+    Args:
+        world: the pybullet world of the scene the strategy is retargeted in.
+        T_world_object, cov_object: the object's pose (4, 4) and its covariance (6, 6) in that scene.
+        cov: (19, 19) the configuration's covariance about the candidate (the strategy's last marginal).
+        n: draws per evaluation.
+        rng: the generator of the standard normals.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        T_world_object: np.ndarray,
+        cov_object: np.ndarray,
+        cov: np.ndarray,
+        n: int,
+        rng: np.random.Generator,
+    ):
+        self.closer = HandCloser(world)
+        self.T_world_object = np.asarray(T_world_object, dtype=float)
+        L_object = np.linalg.cholesky(np.asarray(cov_object, dtype=float) + 1e-15 * np.eye(6))
+        L = np.linalg.cholesky(np.asarray(cov, dtype=float) + 1e-12 * np.eye(cov.shape[0]))
+        z = rng.standard_normal((n, 6 + cov.shape[0]))
+        self.xi_object = z[:, :6] @ L_object.T
+        self.dq = z[:, 6:] @ L.T
+        self.evaluations = 0
+
+    def draws(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The draws about ``(T_object_wrist (4, 4), joints (13,))``: world wrist poses (n, 4, 4) and
+        joints (n, 13) [rad]."""
+        T_wrist = np.asarray(T_object_wrist, dtype=float) @ se3_exp(self.dq[:, :6])
+        T_world_wrist = self.T_world_object @ se3_exp(self.xi_object) @ T_wrist
+        return T_world_wrist, sah.clip_joints(np.asarray(joints, dtype=float) + self.dq[:, 6:])
+
+    def qualities(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """(n,) epsilon of each draw about ``(T_object_wrist (4, 4), joints (13,))``."""
+        self.evaluations += 1
+        T_world_wrist, J = self.draws(T_object_wrist, joints)
+        q = np.concatenate([q_from_pose(T_world_wrist), J], axis=-1)
+        return np.array([self.closer.close(x).quality for x in q])
+
+    def __call__(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> float:
+        return float(np.mean(self.qualities(T_object_wrist, joints)))
+
+
 def _world_q(T_world_object: np.ndarray, q_object: np.ndarray) -> np.ndarray:
     """q (19,) with its wrist pose moved from the object frame into the world frame; joints unchanged."""
     q_world = np.array(q_object, dtype=float)
@@ -100,6 +159,7 @@ def retarget_in_scene(
         retargeting time and, in a scene, the last step's :func:`grasp_shape` as ``last_step``) and the
         full :class:`~retarget.retargeting.RetargetResult`.
     """
+    config = config or RetargetConfig()
     start = time.perf_counter()
     if scene is None:
         result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
@@ -107,15 +167,45 @@ def retarget_in_scene(
         with World(scene, hand="sah") as world:
             penetration = object_frame_penetration(world, scene.T_world_object)
             result = retarget_demonstration(demo, config=config, progress=progress, penetration=penetration)
+            if config.final_grasp == "refined":
+                result = _refine_final_grasp(demo, scene, world, result, config)
             shape = grasp_shape(world, scene.T_world_object, result.q[-1])
         result = RetargetResult(**{**result.__dict__, "meta": {**result.meta, "last_step": shape}})
-    traj = result.to_trajectory(
+    traj = _trajectory(demo, result, dict(meta or {}, scene=None if scene is None else scene.name,
+                                          retarget_time_s=time.perf_counter() - start))  # fmt: skip
+    return traj, result
+
+
+def _trajectory(demo: Demonstration, result: RetargetResult, meta: dict) -> Trajectory:
+    return result.to_trajectory(
         T_world_object_mean=demo.T_world_object_mean,
         cov_object=demo.cov_object,
         dt_s=demo.dt_s,
         object_name=demo.object,
         grasp_type=demo.grasp_type,
-        meta=dict(meta or {}, scene=None if scene is None else scene.name,
-                  retarget_time_s=time.perf_counter() - start),
-    )  # fmt: skip
-    return traj, result
+        meta=meta,
+    )
+
+
+def _refine_final_grasp(
+    demo: Demonstration, scene: Scene, world: World, result: RetargetResult, config: RetargetConfig
+) -> RetargetResult:
+    """The refined final grasp (:mod:`retarget.final_grasp`): the draws about a candidate come from the last
+    marginal of the paper's trajectory's variation model in ``scene`` (default parameters); a candidate's
+    blended steps must be collision-free."""
+    from .scene_model import learn_in_scene
+
+    start = time.perf_counter()
+    settings = config.final_grasp_settings
+    model = learn_in_scene(_trajectory(demo, result, {}), scene)
+    rng = np.random.default_rng(settings.seed)
+    score = ExpectedQuality(world, scene.T_world_object, scene.cov_object, model.cov[-1], settings.draws, rng)
+    penetration = object_frame_penetration(world, scene.T_world_object)
+
+    def is_free(T_object_wrist: np.ndarray, joints: np.ndarray) -> bool:
+        return penetration(np.concatenate([q_from_pose(T_object_wrist), joints])) <= 0.0
+
+    refined = refine_final_grasp(result.T_object_wrist, result.joints, score, settings, is_free)
+    out = result.with_final_grasp(refined)
+    out.meta["final_grasp"].update(settings=dataclasses.asdict(settings), time_s=time.perf_counter() - start)
+    return out

@@ -6,19 +6,25 @@ there, and what it changed when measured, is in docs/method.md.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from assets.errors import InputError
+from assets.sah import FINGERTIP_COV_MAPS
 
-__all__ = ["PAPER_WEIGHTS", "TARGETS", "IsFree", "Penetration", "RetargetConfig"]
+from .final_grasp import FinalGraspConfig
+
+__all__ = ["PAPER_WEIGHTS", "TARGETS", "FINAL_GRASPS", "IsFree", "Penetration", "RetargetConfig"]
 
 PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
 """(w1..w7) of the paper for the SAH: thumb, index, middle, ring, wrist, collision, smoothness."""
 
 TARGETS = ("by_grasp_type", "fingertips", "scaled")
 """The retargeting's fingertip targets (:attr:`RetargetConfig.targets`)."""
+
+FINAL_GRASPS = ("paper", "refined")
+"""What the last step is (:attr:`RetargetConfig.final_grasp`)."""
 
 IsFree = Callable[[np.ndarray], bool]
 """``is_free(q)``: q (19,) = [p (m), rotation vector (rad), 13 joints (rad)], SAH in the OBJECT frame."""
@@ -71,6 +77,15 @@ class RetargetConfig:
             beyond the human's, stop at contact around it instead of the wrist standing back.
             ``"by_grasp_type"`` (the default): ``"scaled"`` for a power grasp, ``"fingertips"`` for a
             precision grasp (measured: docs/results.md, "Strategies that hold").
+        covariance_map: how Sigma_r(t)'s fingertip covariance is realised in the configuration
+            (:func:`assets.sah.config_cov_from_fingertip_cov`): ``"configuration"``, the pseudo-inverse of
+            the whole fingertip Jacobian (wrist and joints share it), or ``"finger_joints"`` (the
+            default), the fingers' joints alone with the wrist held, so that a finger whose joints the
+            variation model moves (a joint limit, a clearance) does not carry the wrist with it.
+        final_grasp: ``"paper"``: the last step is the fingertip search's; ``"refined"`` (the default):
+            searched again near it for the configuration whose draws close to the best grasps
+            (:mod:`retarget.final_grasp`; needs the collision check's scene, and is skipped without it).
+        final_grasp_settings: :class:`~retarget.final_grasp.FinalGraspConfig` of ``"refined"``.
 
     Raises:
         InputError: a value out of its range.
@@ -94,6 +109,9 @@ class RetargetConfig:
     max_wrist_step_mm: float = 50.0
     max_wrist_step_deg: float = 20.0
     targets: str = "by_grasp_type"
+    covariance_map: str = "finger_joints"
+    final_grasp: str = "refined"
+    final_grasp_settings: FinalGraspConfig = field(default_factory=FinalGraspConfig)
 
     def __post_init__(self):
         w = tuple(float(x) for x in self.weights)
@@ -116,5 +134,14 @@ class RetargetConfig:
             raise InputError("contact_stop_iterations must be >= 1, max_wrist_step_mm and _deg > 0")
         if self.targets not in TARGETS:
             raise InputError(f"targets: expected one of {', '.join(TARGETS)}, found {self.targets!r}")
+        if self.covariance_map not in FINGERTIP_COV_MAPS:
+            valid = ", ".join(FINGERTIP_COV_MAPS)
+            raise InputError(f"covariance_map: expected one of {valid}, found {self.covariance_map!r}")
+        if self.final_grasp not in FINAL_GRASPS:
+            raise InputError(
+                f"final_grasp: expected one of {', '.join(FINAL_GRASPS)}, found {self.final_grasp!r}"
+            )
+        if not isinstance(self.final_grasp_settings, FinalGraspConfig):
+            raise InputError("final_grasp_settings: expected a FinalGraspConfig")
         if not all(f > 0 for f in self.escape_factors):
             raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")

@@ -23,6 +23,7 @@ Settings: :class:`~retarget.config.RetargetConfig`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -35,6 +36,7 @@ from assets.q_layout import N_JOINTS
 from assets.se3 import q_from_pose
 
 from .config import PAPER_WEIGHTS, IsFree, Penetration, RetargetConfig
+from .final_grasp import FinalGraspResult
 from .objective import (
     THUMB_BASE,
     StepCosts,
@@ -85,6 +87,10 @@ class RetargetResult:
         converged: (T,) Rosenbrock's success flag per step.
         virtual_fingers: the chosen virtual fingers, if computed from a demonstration.
         T_hwrist_rwrist: (4, 4) rT_h used.
+        p_object_targets: (T, 4, 3) tau_v, the fingertip targets [m] (object frame).
+
+    After :meth:`with_final_grasp`, ``fingertip_error_mm`` and ``fingertip_rmse_mm`` are those of the
+    trajectory as written, while ``distances``, ``cost`` and ``cov_retarget`` stay the fingertip search's.
     """
 
     T_object_wrist: np.ndarray
@@ -98,8 +104,25 @@ class RetargetResult:
     n_collision_checks: np.ndarray
     converged: np.ndarray
     T_hwrist_rwrist: np.ndarray
+    p_object_targets: np.ndarray | None = None
     virtual_fingers: VirtualFingers | None = None
     meta: dict = field(default_factory=dict)
+
+    def with_final_grasp(self, refined: FinalGraspResult) -> RetargetResult:
+        """This result with the trajectory of a :func:`~retarget.final_grasp.refine_final_grasp`: its wrist
+        poses and joints, the fingertip errors against tau_v recomputed, the refinement in ``meta``."""
+        T, joints = refined.T_object_wrist, refined.joints
+        err = sah.fingertip_positions_in(T, joints) - self.p_object_targets
+        err_mm = 1e3 * np.linalg.norm(err, axis=-1)
+        meta = {**self.meta, "final_grasp": refined.to_meta()}
+        return dataclasses.replace(
+            self,
+            T_object_wrist=T,
+            joints=joints,
+            fingertip_error_mm=err_mm,
+            fingertip_rmse_mm=np.sqrt(np.mean(err_mm**2, axis=-1)),
+            meta=meta,
+        )
 
     @property
     def rmse_mm(self) -> float:
@@ -145,14 +168,18 @@ class RetargetResult:
         )
 
 
-def fingertip_cov_to_config(T_object_wrist: np.ndarray, joints: np.ndarray, mse_m2: np.ndarray) -> np.ndarray:
+def fingertip_cov_to_config(
+    T_object_wrist: np.ndarray, joints: np.ndarray, mse_m2: np.ndarray, through: str = "configuration"
+) -> np.ndarray:
     """Sigma_r from per-step fingertip MSE: (T, 4, 4), (T, 13), (T,) [m^2] -> (T, 19, 19) PSD.
 
-    The fingertip covariance is ``mse / 3 * I_12`` (isotropic; trace per fingertip = mse).
+    The fingertip covariance is ``mse / 3 * I_12`` (isotropic; trace per fingertip = mse), realised
+    ``through`` the whole configuration or the finger joints alone
+    (:func:`assets.sah.config_cov_from_fingertip_cov`).
     """
     J = sah.fingertip_jacobian(T_object_wrist, joints)
     cov12 = (np.asarray(mse_m2, dtype=float) / 3.0)[:, None, None] * np.eye(12)
-    return sah.config_cov_from_fingertip_cov(J, cov12)
+    return sah.config_cov_from_fingertip_cov(J, cov12, through=through)
 
 
 def retarget_fingertips(
@@ -244,7 +271,7 @@ def retarget_fingertips(
         out_pen[t] = costs.penetration_mm
         T_start, joints_seed, joints_prev = T_opt, joints_opt, joints_opt
     mse_m2 = np.mean(np.sum(out_err**2, axis=-1), axis=-1)
-    cov = fingertip_cov_to_config(out_T, out_joints, mse_m2)
+    cov = fingertip_cov_to_config(out_T, out_joints, mse_m2, config.covariance_map)
     err_mm = 1e3 * np.linalg.norm(out_err, axis=-1)
     result = RetargetResult(
         T_object_wrist=out_T,
@@ -258,10 +285,12 @@ def retarget_fingertips(
         n_collision_checks=out_checks,
         converged=out_ok,
         T_hwrist_rwrist=rTh,
+        p_object_targets=P,
         meta={
             "weights": list(config.weights),
             "smoothness_unit": config.smoothness_unit,
             "max_nfev": config.max_nfev,
+            "covariance_map": config.covariance_map,
             "steps_in_collision": int(np.sum(out_d[:, 5] > 0)) if checked else None,
             "max_penetration_mm": float(np.max(out_pen)) if penetration is not None else None,
         },

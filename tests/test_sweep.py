@@ -15,16 +15,21 @@ from pbdgrasp.strategy import retarget_in_scene
 from planning.scene import load_scene
 from planning.world import World
 from retarget.demonstration import Demonstration
+from retarget.retargeting import RetargetConfig
 
 
 @pytest.fixture(scope="module")
 def ham_arc_models():
-    """ham's strategy (retargeted in its own scene) solved in ham_arc with and without the sweep."""
+    """ham's strategy (retargeted in its own scene) solved in ham_arc with and without the sweep, with
+    Sigma_r and Sigma_m through the whole configuration and the paper's last step, as measured when the
+    sweep was written (the default finger-joint covariances leave no mean in a wall there)."""
     demo = Demonstration.load("ham")
-    traj, _ = retarget_in_scene(demo, load_scene("ham"))
+    config = RetargetConfig(final_grasp="paper", covariance_map="configuration")
+    traj, _ = retarget_in_scene(demo, load_scene("ham"), config)
     scene = load_scene("ham_arc")
-    plain = learn_in_scene(traj, scene, VariationParams(backward_sweep=False))
-    swept = learn_in_scene(traj, scene, VariationParams())
+    params = VariationParams(fingertip_cov_map="configuration")
+    plain = learn_in_scene(traj, scene, dataclasses.replace(params, backward_sweep=False))
+    swept = learn_in_scene(traj, scene, params)
     return scene, plain, swept
 
 

@@ -343,17 +343,22 @@ def test_the_cache_key_skips_the_demonstration_generator(tmp_path, monkeypatch):
     assert table1._source_digest(("assets",)) != before
 
 
-def test_the_trajectory_key_covers_the_world_that_retargeting_checks(tmp_path, monkeypatch):
-    """Retargeting's d6 runs the pybullet world: an edit of planning/world.py must change the trajectory's
-    source digest (it did not before 2026-12-01, so stale trajectories were reused)."""
+@pytest.mark.parametrize("edited", ["planning/world.py", "planning/autograsp.py", "inference/solve.py"])
+def test_the_trajectory_key_covers_the_world_the_closing_and_the_model_that_retargeting_runs(
+    tmp_path, monkeypatch, edited
+):
+    """Retargeting's d6 runs the pybullet world, and the refined final grasp closes the hand and solves a
+    variation model: an edit of any of them must change the trajectory's source digest (the world's did not
+    before 2026-12-01, so stale trajectories were reused)."""
     from pbdgrasp import cache as table1
 
-    for rel in ("retarget/retargeting.py", "pbdgrasp/strategy.py", "planning/world.py"):
+    rels = ("retarget/retargeting.py", "pbdgrasp/strategy.py", "planning/world.py", "planning/autograsp.py")
+    for rel in (*rels, "inference/solve.py"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text("x = 1\n")
     monkeypatch.setattr(table1, "_PACKAGE_ROOT", tmp_path)
     before = table1._source_digest(table1.RETARGET_SOURCES)
-    (tmp_path / "planning" / "world.py").write_text("x = 2\n")
+    (tmp_path / edited).write_text("x = 2\n")
     assert table1._source_digest(table1.RETARGET_SOURCES) != before
 
 

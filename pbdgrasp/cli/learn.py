@@ -11,6 +11,7 @@ import time
 
 from ._args import int_in, output_file, seed
 from ._out import stage, warn
+from .retarget import add_final_grasp_argument
 
 NAME = "learn"
 HELP = "a strategy from a demonstration: retarget it, then infer the variation model in a scene"
@@ -35,8 +36,9 @@ def add_arguments(p) -> None:
         "--max-nfev", type=int_in(1, 100_000), default=None, help="Rosenbrock evaluations per step"
     )
     p.add_argument(
-        "--seed", type=seed, default=0, help="recorded for provenance (both stages are deterministic)"
+        "--seed", type=seed, default=0, help="the seed of the refined final grasp's draws (and provenance)"
     )
+    add_final_grasp_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
 
@@ -45,7 +47,6 @@ def run(args) -> int:
     from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
-    from retarget.retargeting import RetargetConfig
 
     from . import infer, retarget
 
@@ -55,7 +56,7 @@ def run(args) -> int:
     scene = load_scene(args.scene) if args.scene else own_scene
     if scene.object.name != demo.object:
         warn(f"{args.demo} demonstrates {demo.object!r}; the scene holds {scene.object.name!r}")
-    config = RetargetConfig() if args.max_nfev is None else RetargetConfig(max_nfev=args.max_nfev)
+    config = retarget.config_of(args)
     stage(f"retargeting {demo.object} ({demo.num_steps} steps)", enabled=False if args.no_progress else None)
     traj, result = retarget_in_scene(
         demo, own_scene, config, progress=not args.no_progress, meta={"seed": args.seed}

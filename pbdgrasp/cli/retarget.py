@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from assets.errors import InputError
-from retarget.config import TARGETS
+from retarget.config import FINAL_GRASPS, TARGETS
 
 from ._args import int_in, output_file, seed
 
@@ -33,7 +33,7 @@ def add_arguments(p) -> None:
         help="output .traj.npz",
     )
     p.add_argument(
-        "--seed", type=seed, default=0, help="recorded for provenance (retargeting is deterministic)"
+        "--seed", type=seed, default=0, help="the seed of the refined final grasp's draws (and provenance)"
     )
     p.add_argument("--scene", help="scene for the collision check (default: the scene named like the object)")
     p.add_argument("--no-collision", action="store_true", help="drop d6 (no collision check; faster)")
@@ -47,21 +47,42 @@ def add_arguments(p) -> None:
         help="fingertip targets: the paper's human fingertips, or scaled from the palm by the hand-size "
         "ratio (default by_grasp_type: scaled for power grasps)",
     )
+    add_final_grasp_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def add_final_grasp_argument(p) -> None:
+    """``--final-grasp``, shared with ``learn``."""
+    p.add_argument(
+        "--final-grasp",
+        choices=FINAL_GRASPS,
+        default="refined",
+        help="the last step: the fingertip search's (paper), or searched again near it for the "
+        "configuration whose draws close to the best grasps (refined, the default; needs the collision "
+        "check's scene)",
+    )
+
+
+def config_of(args, **settings):
+    """The :class:`~retarget.retargeting.RetargetConfig` of the command line's options."""
+    from retarget.final_grasp import FinalGraspConfig
+    from retarget.retargeting import RetargetConfig
+
+    if args.max_nfev is not None:
+        settings["max_nfev"] = args.max_nfev
+    return RetargetConfig(
+        final_grasp=args.final_grasp, final_grasp_settings=FinalGraspConfig(seed=args.seed), **settings
+    )
 
 
 def run(args) -> int:
     from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
-    from retarget.retargeting import RetargetConfig
 
     out = Path(args.output)
     demo = Demonstration.load(args.demo)
-    settings = {"targets": args.targets}
-    if args.max_nfev is not None:
-        settings["max_nfev"] = args.max_nfev
-    config = RetargetConfig(**settings)
+    config = config_of(args, targets=args.targets)
     scene = None
     if not args.no_collision:
         scene = load_scene(args.scene or demo.object)
@@ -89,9 +110,17 @@ def summary(demo, traj, result, elapsed_s: float, out) -> str:
         if shape
         else ""
     )
+    final = result.meta.get("final_grasp")
+    refined = (
+        f"final grasp refined: draws' mean epsilon {final['expected_quality_before']:.3f} -> "
+        f"{final['expected_quality_after']:.3f}; "
+        if final
+        else ""
+    )
     return (
         f"{demo.object} ({demo.grasp_type}): {traj.num_steps} steps, fingertip RMSE {result.rmse_mm:.1f} mm "
-        f"(final step {result.fingertip_rmse_mm[-1]:.1f} mm, targets {result.meta['targets']}), {held}"
+        f"(final step {result.fingertip_rmse_mm[-1]:.1f} mm, targets {result.meta['targets']}), "
+        f"{held}{refined}"
         f"{result.virtual_fingers.describe() if result.virtual_fingers else ''}, "
         f"steps in collision {'n/a' if collide is None else collide}, {elapsed_s:.1f} s -> {out}"
     )
