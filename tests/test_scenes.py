@@ -73,6 +73,27 @@ def test_chips_flat_lies_along_x():
     assert np.allclose(axis, [1, 0, 0], atol=1e-12)
 
 
+@pytest.mark.parametrize("roll_deg", [36.0, 71.0])  # 0: the shipped chips_flat
+def test_a_lying_can_rolled_about_its_axis_rests_on_the_table(tmp_path, roll_deg):
+    """The placement check takes the can's lowest point, not pybullet's bounding box: a box rotated with
+    the can reached 14 mm under the table top at 36 deg of roll and refused a can resting on it."""
+    from scipy.spatial.transform import Rotation
+
+    from planning.world import World
+
+    d = yaml.safe_load(open(assets.scene_path("chips_flat")))
+    turn = Rotation.from_euler("y", 90, degrees=True) * Rotation.from_euler("z", roll_deg, degrees=True)
+    d["object"]["rpy_deg"] = turn.as_euler("xyz", degrees=True).tolist()
+    path = tmp_path / "rolled.yaml"
+    path.write_text(yaml.safe_dump(d))
+    with World(load_scene(path)) as world:  # the check runs here
+        assert np.allclose(world.scene.T_world_object[:3, 2], [1, 0, 0], atol=1e-9)  # still along x
+    d["object"]["position_m"][2] -= 0.005
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(InputError, match=r"rolled\.yaml: object: chips is 5 mm inside or under the table"):
+        World(load_scene(path))
+
+
 def _write(tmp_path, mutate):
     d = yaml.safe_load(open(assets.scene_path("ham_arc")))
     mutate(d)
