@@ -83,7 +83,7 @@ class VariationParams:
     power_wrist_position_std_mm: float = 15.0
     power_wrist_rotation_std_deg: float = 2.0
     joint_floor_std_deg: float = 1.0
-    fingertip_cov_map: str = "finger_joints"
+    fingertip_cov_map: str = "configuration"
     smooth_position_std_mm: float = 10.0
     smooth_rotation_std_deg: float = 5.0
     smooth_joint_std_deg: float = 5.0

@@ -23,7 +23,7 @@ import numpy as np
 
 from assets import sah
 from assets.q_layout import POSE
-from assets.se3 import pose_from_q, q_from_pose, se3_exp
+from assets.se3 import pose_from_q, q_from_pose, se3_exp, se3_inverse, se3_log
 from planning.autograsp import HandCloser
 from planning.scene import Scene
 from planning.world import World
@@ -34,6 +34,7 @@ from retarget.trajectory import Trajectory
 
 __all__ = [
     "ExpectedQuality",
+    "final_grasp_method",
     "object_frame_is_free",
     "object_frame_penetration",
     "grasp_shape",
@@ -89,10 +90,11 @@ def grasp_shape(world: World, T_world_object: np.ndarray, q_object: np.ndarray) 
 class ExpectedQuality:
     """``E[phi_o]`` about a configuration: the mean epsilon of the hand closed at ``n`` draws.
 
-    Each draw perturbs the object's pose by ``Sigma_o`` and the configuration by ``cov`` (GTSAM's body
-    tangent ``[omega, v, 13 joints]``, right perturbation; joints clipped to the limits), the draws' standard
-    normals fixed once (common random numbers), so that the value is a deterministic function of the
-    configuration; a draw in collision scores 0. It is :data:`retarget.final_grasp.ExpectedQuality`.
+    Each draw perturbs the object's pose by ``Sigma_o`` and the configuration, moved by ``offset`` first, by
+    ``cov`` (GTSAM's body tangent ``[omega, v, 13 joints]``, right perturbation; joints clipped to the
+    limits), the draws' standard normals fixed once (common random numbers), so that the value is a
+    deterministic function of the configuration; a draw in collision scores 0. It is
+    :data:`retarget.final_grasp.ExpectedQuality`.
 
     Args:
         world: the pybullet world of the scene the strategy is retargeted in.
@@ -100,6 +102,9 @@ class ExpectedQuality:
         cov: (19, 19) the configuration's covariance about the candidate (the strategy's last marginal).
         n: draws per evaluation.
         rng: the generator of the standard normals.
+        offset: (19,) where the draws are centred relative to the candidate, ``[omega, v, 13 joints]``
+            (the model's last mean relative to tau_r's last step: the joint limits and the clearances move
+            it); default zero.
     """
 
     def __init__(
@@ -110,8 +115,10 @@ class ExpectedQuality:
         cov: np.ndarray,
         n: int,
         rng: np.random.Generator,
+        offset: np.ndarray | None = None,
     ):
         self.closer = HandCloser(world)
+        self.offset = np.zeros(19) if offset is None else np.asarray(offset, dtype=float)
         self.T_world_object = np.asarray(T_world_object, dtype=float)
         L_object = np.linalg.cholesky(np.asarray(cov_object, dtype=float) + 1e-15 * np.eye(6))
         L = np.linalg.cholesky(np.asarray(cov, dtype=float) + 1e-12 * np.eye(cov.shape[0]))
@@ -123,9 +130,10 @@ class ExpectedQuality:
     def draws(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The draws about ``(T_object_wrist (4, 4), joints (13,))``: world wrist poses (n, 4, 4) and
         joints (n, 13) [rad]."""
-        T_wrist = np.asarray(T_object_wrist, dtype=float) @ se3_exp(self.dq[:, :6])
-        T_world_wrist = self.T_world_object @ se3_exp(self.xi_object) @ T_wrist
-        return T_world_wrist, sah.clip_joints(np.asarray(joints, dtype=float) + self.dq[:, 6:])
+        T_mean = np.asarray(T_object_wrist, dtype=float) @ se3_exp(self.offset[:6])
+        T_world_wrist = self.T_world_object @ se3_exp(self.xi_object) @ T_mean @ se3_exp(self.dq[:, :6])
+        joints_mean = np.asarray(joints, dtype=float) + self.offset[6:]
+        return T_world_wrist, sah.clip_joints(joints_mean + self.dq[:, 6:])
 
     def qualities(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """(n,) epsilon of each draw about ``(T_object_wrist (4, 4), joints (13,))``."""
@@ -156,24 +164,35 @@ def retarget_in_scene(
 
     Returns:
         The trajectory (object prior and rate of the demonstration; ``meta`` plus the scene name, the
-        retargeting time and, in a scene, the last step's :func:`grasp_shape` as ``last_step``) and the
-        full :class:`~retarget.retargeting.RetargetResult`.
+        retargeting time, ``final_grasp_method`` (``paper`` or ``refined``: without a scene, ``paper``)
+        and, in a scene, the last step's :func:`grasp_shape` as ``last_step``) and the full
+        :class:`~retarget.retargeting.RetargetResult`.
     """
     config = config or RetargetConfig()
     start = time.perf_counter()
+    method = final_grasp_method(config, demo.grasp_type) if scene is not None else "paper"
     if scene is None:
         result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
+        info = {}
     else:
         with World(scene, hand="sah") as world:
             penetration = object_frame_penetration(world, scene.T_world_object)
             result = retarget_demonstration(demo, config=config, progress=progress, penetration=penetration)
-            if config.final_grasp == "refined":
+            if method == "refined":
                 result = _refine_final_grasp(demo, scene, world, result, config)
-            shape = grasp_shape(world, scene.T_world_object, result.q[-1])
-        result = RetargetResult(**{**result.__dict__, "meta": {**result.meta, "last_step": shape}})
+            info = {"last_step": grasp_shape(world, scene.T_world_object, result.q[-1])}
+    info["final_grasp_method"] = method
+    result = RetargetResult(**{**result.__dict__, "meta": {**result.meta, **info}})
     traj = _trajectory(demo, result, dict(meta or {}, scene=None if scene is None else scene.name,
                                           retarget_time_s=time.perf_counter() - start))  # fmt: skip
     return traj, result
+
+
+def final_grasp_method(config: RetargetConfig, grasp_type: str) -> str:
+    """``"paper"`` or ``"refined"``: :attr:`RetargetConfig.final_grasp` for a grasp type."""
+    if config.final_grasp == "by_grasp_type":
+        return "refined" if grasp_type == "precision" else "paper"
+    return config.final_grasp
 
 
 def _trajectory(demo: Demonstration, result: RetargetResult, meta: dict) -> Trajectory:
@@ -199,7 +218,13 @@ def _refine_final_grasp(
     settings = config.final_grasp_settings
     model = learn_in_scene(_trajectory(demo, result, {}), scene)
     rng = np.random.default_rng(settings.seed)
-    score = ExpectedQuality(world, scene.T_world_object, scene.cov_object, model.cov[-1], settings.draws, rng)
+    offset = np.r_[
+        se3_log(se3_inverse(result.T_object_wrist[-1]) @ model.T_object_wrist_mean[-1]),
+        model.joints_mean[-1] - result.joints[-1],
+    ]
+    score = ExpectedQuality(
+        world, scene.T_world_object, scene.cov_object, model.cov[-1], settings.draws, rng, offset
+    )
     penetration = object_frame_penetration(world, scene.T_world_object)
 
     def is_free(T_object_wrist: np.ndarray, joints: np.ndarray) -> bool:

@@ -23,7 +23,7 @@ PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
 TARGETS = ("by_grasp_type", "fingertips", "scaled")
 """The retargeting's fingertip targets (:attr:`RetargetConfig.targets`)."""
 
-FINAL_GRASPS = ("paper", "refined")
+FINAL_GRASPS = ("by_grasp_type", "paper", "refined")
 """What the last step is (:attr:`RetargetConfig.final_grasp`)."""
 
 IsFree = Callable[[np.ndarray], bool]
@@ -78,13 +78,16 @@ class RetargetConfig:
             ``"by_grasp_type"`` (the default): ``"scaled"`` for a power grasp, ``"fingertips"`` for a
             precision grasp (measured: docs/results.md, "Strategies that hold").
         covariance_map: how Sigma_r(t)'s fingertip covariance is realised in the configuration
-            (:func:`assets.sah.config_cov_from_fingertip_cov`): ``"configuration"``, the pseudo-inverse of
-            the whole fingertip Jacobian (wrist and joints share it), or ``"finger_joints"`` (the
-            default), the fingers' joints alone with the wrist held, so that a finger whose joints the
-            variation model moves (a joint limit, a clearance) does not carry the wrist with it.
-        final_grasp: ``"paper"``: the last step is the fingertip search's; ``"refined"`` (the default):
-            searched again near it for the configuration whose draws close to the best grasps
-            (:mod:`retarget.final_grasp`; needs the collision check's scene, and is skipped without it).
+            (:func:`assets.sah.config_cov_from_fingertip_cov`): ``"configuration"`` (the default), the
+            pseudo-inverse of the whole fingertip Jacobian, wrist and joints sharing it (mostly the wrist:
+            metres are cheap against radians in its norm), or ``"finger_joints"``, the fingers' joints
+            alone with the wrist held (measured in docs/method.md: tighter models whose draws close
+            better in open scenes, but whose wrists cannot move far enough in two obstacle rows).
+        final_grasp: ``"paper"``: the last step is the fingertip search's; ``"refined"``: searched again
+            near it for the configuration whose draws close to the best grasps (:mod:`retarget.final_grasp`;
+            needs the collision check's scene, and is skipped without it); ``"by_grasp_type"`` (the
+            default): ``"refined"`` for a precision grasp, ``"paper"`` for a power grasp (measured: the
+            chips strategy refined opens its hand, and its row between two cans fell from 95 to 78 %).
         final_grasp_settings: :class:`~retarget.final_grasp.FinalGraspConfig` of ``"refined"``.
 
     Raises:
@@ -109,8 +112,8 @@ class RetargetConfig:
     max_wrist_step_mm: float = 50.0
     max_wrist_step_deg: float = 20.0
     targets: str = "by_grasp_type"
-    covariance_map: str = "finger_joints"
-    final_grasp: str = "refined"
+    covariance_map: str = "configuration"
+    final_grasp: str = "by_grasp_type"
     final_grasp_settings: FinalGraspConfig = field(default_factory=FinalGraspConfig)
 
     def __post_init__(self):

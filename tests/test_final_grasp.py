@@ -173,8 +173,9 @@ def test_expected_quality_of_vanishing_draws_is_the_quality_at_the_configuration
     assert score(T_object_wrist, joints) == pytest.approx(direct, abs=EPS_NEAR_TOL)
 
 
-def test_expected_quality_draws_follow_the_covariances(ham_world):
-    """The draws' configurations, by another route (the relative pose's log), have the covariance asked."""
+def test_expected_quality_draws_follow_the_offset_and_the_covariances(ham_world):
+    """The draws' configurations, by another route (the relative pose's log), are centred on the candidate
+    moved by the offset and have the covariance asked."""
     from pbdgrasp.strategy import ExpectedQuality
 
     scene, world = ham_world
@@ -182,13 +183,15 @@ def test_expected_quality_draws_follow_the_covariances(ham_world):
     rng = np.random.default_rng(1)
     A = rng.normal(size=(19, 19)) * np.r_[[0.02] * 3, [0.004] * 3, [0.05] * 13][:, None]
     cov = A @ A.T
+    offset = np.r_[0.05, -0.02, 0.01, 0.01, -0.02, 0.03, np.full(13, 0.05)]
     n = 20_000
-    score = ExpectedQuality(world, scene.T_world_object, 1e-18 * np.eye(6), cov, n, np.random.default_rng(2))
+    tiny = 1e-18 * np.eye(6)
+    score = ExpectedQuality(world, scene.T_world_object, tiny, cov, n, np.random.default_rng(2), offset)
     T_world_wrist, q_joints = score.draws(T_object_wrist, joints)
-    T_rel = lie.se3_inverse(scene.T_world_object @ T_object_wrist) @ T_world_wrist
-    xi = lie.se3_log(T_rel)
+    T_mean = scene.T_world_object @ T_object_wrist @ lie.se3_exp(offset[:6])
+    xi = lie.se3_log(lie.se3_inverse(T_mean) @ T_world_wrist)
     np.testing.assert_allclose(xi, score.dq[:, :6], atol=1e-6)  # the body-frame perturbation (object ~3e-8)
-    np.testing.assert_array_equal(q_joints, sah.clip_joints(joints + score.dq[:, 6:]))
+    np.testing.assert_array_equal(q_joints, sah.clip_joints(joints + offset[6:] + score.dq[:, 6:]))
     empirical = np.cov(score.dq, rowvar=False)
     sd = np.sqrt(np.diag(cov))
     assert np.abs((empirical - cov) / np.outer(sd, sd)).max() < 0.05  # correlations within 5e-2 (n = 2e4)
@@ -230,6 +233,7 @@ def test_the_ham_strategy_refined_closes_better_and_ends_where_its_blend_says():
     paper, res_paper = retarget_in_scene(demo, scene, RetargetConfig(final_grasp="paper"))
     traj, res = retarget_in_scene(demo, scene, RetargetConfig(final_grasp_settings=settings))
     info = res.meta["final_grasp"]
+    assert res.meta["final_grasp_method"] == "refined" and paper.meta["final_grasp_method"] == "paper"
     assert info["kept"] and info["expected_quality_after"] > info["expected_quality_before"]
     np.testing.assert_array_equal(traj.T_object_wrist[:-10], paper.T_object_wrist[:-10])
     np.testing.assert_array_equal(traj.cov_retarget, paper.cov_retarget)  # Sigma_r of the fingertip search
@@ -239,9 +243,13 @@ def test_the_ham_strategy_refined_closes_better_and_ends_where_its_blend_says():
     np.testing.assert_allclose(traj.T_object_wrist[-1], T_end, atol=1e-6)  # meta rounds to 1e-3 mm, deg
     np.testing.assert_allclose(traj.joints[-1], j_end, atol=1e-4)
     model = learn_in_scene(_trajectory(demo, res_paper, {}), scene)
+    offset = np.r_[
+        lie.se3_log(lie.se3_inverse(paper.T_object_wrist[-1]) @ model.T_object_wrist_mean[-1]),
+        model.joints_mean[-1] - paper.joints[-1],
+    ]
     with World(scene) as world:
         rng = np.random.default_rng(settings.seed)
-        score = ExpectedQuality(world, scene.T_world_object, scene.cov_object, model.cov[-1], 12, rng)
+        score = ExpectedQuality(world, scene.T_world_object, scene.cov_object, model.cov[-1], 12, rng, offset)
         before = score(paper.T_object_wrist[-1], paper.joints[-1])
         after = score(traj.T_object_wrist[-1], traj.joints[-1])
     assert before == pytest.approx(info["expected_quality_before"], abs=1e-9)

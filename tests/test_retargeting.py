@@ -183,14 +183,14 @@ def test_sigma_r_is_symmetric_psd_and_maps_back_to_the_fingertip_covariance():
     back = J @ C @ np.swapaxes(J, -1, -2)
     expected = (mse / 3)[:, None, None] * np.eye(12)
     assert np.max(np.abs(back - expected)) < COV_RTOL * mse.max()
-    direct = fingertip_cov_to_config(res.T_object_wrist, res.joints, mse, through="finger_joints")
+    direct = fingertip_cov_to_config(res.T_object_wrist, res.joints, mse)
     np.testing.assert_allclose(direct, C, rtol=1e-13, atol=1e-12 * mse.max())
-    assert res.meta["covariance_map"] == "finger_joints" and not C[:, :6].any()  # the default holds the wrist
-    whole = RetargetConfig(max_nfev=80, covariance_map="configuration")
-    res_c = retarget_fingertips(far, T, np.eye(4), joints0=joints[0], config=whole)
-    back_c = J @ res_c.cov_retarget @ np.swapaxes(J, -1, -2)
-    assert np.max(np.abs(back_c - expected)) < COV_RTOL * mse.max()  # the same fingertip covariance
-    assert np.abs(res_c.cov_retarget[:, :6, :6]).max() > 0.0  # shared with the wrist
+    assert res.meta["covariance_map"] == "configuration" and np.abs(C[:, :6, :6]).max() > 0.0  # the wrist too
+    held = RetargetConfig(max_nfev=80, covariance_map="finger_joints")
+    res_f = retarget_fingertips(far, T, np.eye(4), joints0=joints[0], config=held)
+    back_f = J @ res_f.cov_retarget @ np.swapaxes(J, -1, -2)
+    assert np.max(np.abs(back_f - expected)) < COV_RTOL * mse.max()  # the same fingertip covariance
+    assert not res_f.cov_retarget[:, :6].any() and res_f.meta["covariance_map"] == "finger_joints"
 
 
 def test_step_costs_by_hand():
@@ -227,7 +227,7 @@ def test_palm_alignment_keeps_the_axes():
         ({"max_wrist_step_deg": float("inf")}, "max_wrist_step_mm and _deg"),
         ({"targets": "contacts"}, "targets"),
         ({"covariance_map": "wrist"}, "covariance_map: expected one of configuration, finger_joints"),
-        ({"final_grasp": "best"}, "final_grasp: expected one of paper, refined"),
+        ({"final_grasp": "best"}, "final_grasp: expected one of by_grasp_type, paper, refined"),
         ({"final_grasp_settings": {"draws": 8}}, "final_grasp_settings: expected a FinalGraspConfig"),
     ],
 )
@@ -305,7 +305,8 @@ def test_cli_writes_a_valid_trajectory_atomically(tmp_path, capsys):
     assert traj.dt_s == pytest.approx(0.05)
     assert "virtual_fingers" in traj.meta and traj.meta["seed"] == 0
     assert traj.meta["targets"] == "fingertips" and traj.meta["hand_scale"] == [1.0] * 4  # a precision grasp
-    assert "final_grasp" not in traj.meta and traj.meta["covariance_map"] == "finger_joints"
+    assert "final_grasp" not in traj.meta and traj.meta["final_grasp_method"] == "paper"
+    assert traj.meta["covariance_map"] == "configuration"
     shape = traj.meta["last_step"]  # the open hand 45 cm above the can: nothing touches
     assert shape["contact_links"] == 0 and shape["palm_to_object_mm"] > 100
     assert sorted(p.name for p in out.parent.iterdir()) == ["tiny.traj.npz"]  # no temporary left behind

@@ -20,9 +20,9 @@ from retarget.retargeting import RetargetConfig
 
 @pytest.fixture(scope="module")
 def ham_arc_models():
-    """ham's strategy (retargeted in its own scene) solved in ham_arc with and without the sweep, with
-    Sigma_r and Sigma_m through the whole configuration and the paper's last step, as measured when the
-    sweep was written (the default finger-joint covariances leave no mean in a wall there)."""
+    """ham's strategy (retargeted in its own scene) solved in ham_arc with and without the sweep, with the
+    paper's last step and Sigma_r and Sigma_m through the whole configuration, as measured when the sweep
+    was written (the refined last step, or the finger-joint covariances, leave no mean in a wall there)."""
     demo = Demonstration.load("ham")
     config = RetargetConfig(final_grasp="paper", covariance_map="configuration")
     traj, _ = retarget_in_scene(demo, load_scene("ham"), config)

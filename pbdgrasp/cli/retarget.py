@@ -56,10 +56,10 @@ def add_final_grasp_argument(p) -> None:
     p.add_argument(
         "--final-grasp",
         choices=FINAL_GRASPS,
-        default="refined",
+        default="by_grasp_type",
         help="the last step: the fingertip search's (paper), or searched again near it for the "
-        "configuration whose draws close to the best grasps (refined, the default; needs the collision "
-        "check's scene)",
+        "configuration whose draws close to the best grasps (refined; needs the collision check's scene); "
+        "default by_grasp_type: refined for precision grasps, paper for power grasps",
     )
 
 
