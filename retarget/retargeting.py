@@ -15,8 +15,13 @@ Steps, per demonstration:
 3. **Sigma_r(t)**: the step's fingertip mean squared error ``mse = mean_j |F_j(k) - F_j(tau_v)|^2`` taken
    as an isotropic fingertip covariance ``mse / 3 * I_12`` (so that each fingertip's expected squared
    distance is the MSE) and mapped into the 19-D tangent ``[omega, v, 13 joints]`` by the fingertip
-   Jacobian's pseudo-inverse (:func:`assets.sah.config_cov_from_fingertip_cov`): rank <= 12, the
-   paper's degenerate covariances. The wrist part is GTSAM's Pose3 body tangent (right perturbation).
+   Jacobian's pseudo-inverse (:func:`assets.sah.config_cov_from_fingertip_cov`, through
+   :attr:`RetargetConfig.covariance_map`): rank <= 12, the paper's degenerate covariances. The wrist part is
+   GTSAM's Pose3 body tangent (right perturbation).
+4. **The final grasp** (ours, :mod:`retarget.final_grasp`): the last step searched again for how the hand
+   closed at its draws holds the object, the change blended into the approach
+   (:meth:`RetargetResult.with_final_grasp`). It needs the pybullet world and a variation model, so
+   :func:`pbdgrasp.strategy.retarget_in_scene` runs it after :func:`retarget_demonstration`.
 
 Settings: :class:`~retarget.config.RetargetConfig`.
 """
