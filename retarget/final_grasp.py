@@ -78,7 +78,8 @@ class FinalGraspConfig:
         max_nfev: objective evaluations (each closes the hand ``draws`` times).
         draws: configurations drawn about a candidate to estimate its expected quality (common random
             numbers: the same standard normal draws for every candidate).
-        blend_steps: the last steps of the trajectory that the change is blended into (10: 0.5 s at 20 Hz).
+        blend_steps: the last steps of the trajectory that the change is blended into (20: 1 s at 20 Hz;
+            measured in docs/method.md against 10 and 30).
         seed: the seed of the common random numbers (the draws' standard normals).
     """
 
@@ -93,7 +94,7 @@ class FinalGraspConfig:
     xtol: float = 0.05
     max_nfev: int = 100
     draws: int = 32
-    blend_steps: int = 10
+    blend_steps: int = 20
     seed: int = 0
 
     def __post_init__(self):
