@@ -23,7 +23,8 @@ asserted in tests.
   neighbours, bookkeeping). The learned strategies come from the real pipeline (demonstration ->
   retargeting with ``retarget_max_nfev`` -> variation model with the scene's prior and signed-distance
   constraints), cached under ``cache_dir`` as the Table I runner caches them. Quick mode plans on the ham
-  scene only, with a strategy built in code (a top-down approach to the hand-placed grasp);
+  scene only, with a strategy built in code (a top-down approach to the hand-placed grasp). This part lives
+  in :mod:`pbdgrasp.bench_planning`;
 * peak memory: ``resource.getrusage(RUSAGE_SELF).ru_maxrss``.
 """
 
@@ -45,7 +46,8 @@ import numpy as np
 from assets.errors import InputError
 from assets.q_layout import Q_DIM
 
-from .bench_fixtures import HAM_GRASP_Q, quick_model, strategy_model, synthetic_trajectory
+from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
+from .bench_planning import PLANNING_SCENES, bench_planning
 from .cache import prepare_trajectory
 from .paper import ROWS
 
@@ -63,8 +65,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-PLANNING_SCENES = ("ham", "chips_between_cans", "jam_hole")
 
 
 @dataclass(frozen=True)
@@ -340,61 +340,6 @@ def bench_retargeting(
         "collision_checks": int(np.sum(res.n_collision_checks)),
         "rmse_mm": float(res.rmse_mm),
     }
-
-
-def _planner_row(results) -> dict:
-    ok = [r for r in results if r.success]
-    total = sum(r.eta_s for r in results)
-    t_col = sum(r.time_collision_s for r in results)
-    t_q = sum(r.time_quality_s for r in results)
-    return {
-        "trials": len(results),
-        "success_rate": len(ok) / len(results),
-        "median_eta_s": float(np.median([r.eta_s for r in ok])) if ok else None,
-        "median_nodes": float(np.median([r.nodes for r in results])),
-        "median_collision_checks": float(np.median([r.collision_checks for r in results])),
-        "quality_evaluations": int(sum(r.quality_evaluations for r in results)),
-        "share_collision": t_col / total if total > 0 else None,
-        "share_quality": t_q / total if total > 0 else None,
-        "share_overhead": (total - t_col - t_q) / total if total > 0 else None,
-        "messages": sorted({r.message for r in results if not r.success}),
-    }
-
-
-def bench_planning(config: BenchConfig, rng: np.random.Generator) -> dict:
-    """Success, ETA, nodes, checks and time shares of each planner of ``PLANNERS`` on ``PLANNING_SCENES``.
-
-    Trial ``i`` of every planner uses the same spawned seed, so the planners start from the same roots.
-    """
-    from planning.grasp_planner import GraspPlanner, PlanningSettings
-    from planning.planners import PLANNERS
-
-    scenes = ("ham",) if config.quick else PLANNING_SCENES
-    out = {}
-    for scene_name, seq in zip(scenes, rng.bit_generator.seed_seq.spawn(len(scenes)), strict=True):
-        given = dict(config.models)
-        if scene_name in given:
-            from inference.model import VariationModel
-
-            model, info = VariationModel.load(given[scene_name]), {"model": given[scene_name], "given": True}
-        elif config.quick:
-            model, info = quick_model(), {"model": "built in code (quick)"}
-        else:
-            model, info = strategy_model(scene_name, config.cache_dir, config.retarget_max_nfev)
-        seeds = seq.spawn(config.trials)
-        rows = {}
-        with GraspPlanner(scene_name, [model]) as planner:
-            for name in PLANNERS:
-                settings = PlanningSettings(planner=name, time_limit_s=config.time_limit_s)
-                results = [planner.plan(np.random.default_rng(s), settings) for s in seeds]
-                rows[name] = _planner_row(results)
-                log.info("bench %s %s: %s", scene_name, name, rows[name])
-        ratios = {}
-        for other in ("ompl", "baseline"):
-            a, b = rows["learned"]["median_eta_s"], rows[other]["median_eta_s"]
-            ratios[f"learned_over_{other}"] = a / b if a is not None and b else None
-        out[scene_name] = {"strategy": info, "planners": rows, "ratios": ratios}
-    return out
 
 
 def peak_memory() -> dict:
