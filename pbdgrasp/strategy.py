@@ -22,8 +22,8 @@ from collections.abc import Callable
 import numpy as np
 
 from assets import sah
-from assets.q_layout import POSE
-from assets.se3 import pose_from_q, q_from_pose, se3_exp, se3_inverse, se3_log
+from assets.q_layout import POSE, Q_DIM
+from assets.se3 import local, pose_from_q, q_from_pose, se3_exp
 from planning.autograsp import HandCloser
 from planning.scene import Scene
 from planning.world import World
@@ -34,7 +34,6 @@ from retarget.trajectory import Trajectory
 
 __all__ = [
     "ExpectedQuality",
-    "final_grasp_method",
     "object_frame_is_free",
     "object_frame_penetration",
     "grasp_shape",
@@ -118,7 +117,7 @@ class ExpectedQuality:
         offset: np.ndarray | None = None,
     ):
         self.closer = HandCloser(world)
-        self.offset = np.zeros(19) if offset is None else np.asarray(offset, dtype=float)
+        self.offset = np.zeros(Q_DIM) if offset is None else np.asarray(offset, dtype=float)
         self.T_world_object = np.asarray(T_world_object, dtype=float)
         L_object = np.linalg.cholesky(np.asarray(cov_object, dtype=float) + 1e-15 * np.eye(6))
         L = np.linalg.cholesky(np.asarray(cov, dtype=float) + 1e-12 * np.eye(cov.shape[0]))
@@ -170,7 +169,7 @@ def retarget_in_scene(
     """
     config = config or RetargetConfig()
     start = time.perf_counter()
-    method = final_grasp_method(config, demo.grasp_type) if scene is not None else "paper"
+    method = config.final_grasp_for(demo.grasp_type) if scene is not None else "paper"
     if scene is None:
         result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
         info = {}
@@ -186,13 +185,6 @@ def retarget_in_scene(
     traj = _trajectory(demo, result, dict(meta or {}, scene=None if scene is None else scene.name,
                                           retarget_time_s=time.perf_counter() - start))  # fmt: skip
     return traj, result
-
-
-def final_grasp_method(config: RetargetConfig, grasp_type: str) -> str:
-    """``"paper"`` or ``"refined"``: :attr:`RetargetConfig.final_grasp` for a grasp type."""
-    if config.final_grasp == "by_grasp_type":
-        return "refined" if grasp_type == "precision" else "paper"
-    return config.final_grasp
 
 
 def _trajectory(demo: Demonstration, result: RetargetResult, meta: dict) -> Trajectory:
@@ -219,7 +211,7 @@ def _refine_final_grasp(
     model = learn_in_scene(_trajectory(demo, result, {}), scene)
     rng = np.random.default_rng(settings.seed)
     offset = np.r_[
-        se3_log(se3_inverse(result.T_object_wrist[-1]) @ model.T_object_wrist_mean[-1]),
+        local(result.T_object_wrist[-1], model.T_object_wrist_mean[-1]),
         model.joints_mean[-1] - result.joints[-1],
     ]
     score = ExpectedQuality(

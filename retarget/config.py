@@ -148,3 +148,15 @@ class RetargetConfig:
             raise InputError("final_grasp_settings: expected a FinalGraspConfig")
         if not all(f > 0 for f in self.escape_factors):
             raise InputError(f"escape_factors: expected positive factors, found {self.escape_factors!r}")
+
+    def targets_for(self, grasp_type: str) -> str:
+        """``"fingertips"`` or ``"scaled"``: :attr:`targets` for a demonstration's grasp type."""
+        if self.targets == "by_grasp_type":
+            return "scaled" if grasp_type == "power" else "fingertips"
+        return self.targets
+
+    def final_grasp_for(self, grasp_type: str) -> str:
+        """``"paper"`` or ``"refined"``: :attr:`final_grasp` for a demonstration's grasp type."""
+        if self.final_grasp == "by_grasp_type":
+            return "refined" if grasp_type == "precision" else "paper"
+        return self.final_grasp

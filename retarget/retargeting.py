@@ -335,9 +335,7 @@ def retarget_demonstration(
     vf = virtual_fingers_of(demo.joints[-1], n_virtual=config.n_virtual, adjacent_only=config.adjacent_only)
     log.info("%s: %s", demo.object, vf.describe())
     targets = virtual_finger_targets(demo.T_object_wrist, demo.joints, vf, 1e-3 * config.pad_clearance_mm)
-    mode = config.targets
-    if mode == "by_grasp_type":
-        mode = "scaled" if demo.grasp_type == "power" else "fingertips"
+    mode = config.targets_for(demo.grasp_type)
     scale = np.ones(4)
     if mode == "scaled":
         scale = hand_scale(vf)

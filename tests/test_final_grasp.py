@@ -244,7 +244,7 @@ def test_the_ham_strategy_refined_closes_better_and_ends_where_its_blend_says():
     np.testing.assert_allclose(traj.joints[-1], j_end, atol=1e-4)
     model = learn_in_scene(_trajectory(demo, res_paper, {}), scene)
     offset = np.r_[
-        lie.se3_log(lie.se3_inverse(paper.T_object_wrist[-1]) @ model.T_object_wrist_mean[-1]),
+        lie.local(paper.T_object_wrist[-1], model.T_object_wrist_mean[-1]),
         model.joints_mean[-1] - paper.joints[-1],
     ]
     with World(scene) as world:
