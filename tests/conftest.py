@@ -1,5 +1,6 @@
 """Fixtures shared by the test modules: synthetic trajectories, a stand-in fingertip map, the one
-numerical-derivative helper of the Jacobian tests, and a ham strategy built in code.
+numerical-derivative helper of the Jacobian tests, a ham strategy built in code, and pybullet's penetration
+depths of a hand trajectory in a scene.
 
 ``ham_top_down_model`` is the variation model of the direct transformation of a straight top-down
 approach that ends at a hand-placed grasp of the ham can (``pbdgrasp.bench_fixtures.HAM_GRASP_Q``,
@@ -12,10 +13,11 @@ import numpy as np
 import pytest
 
 from assets import sah
-from assets.se3 import pose_from_q, se3_exp, se3_inverse
+from assets.se3 import pose_from_q, q_from_pose, se3_exp, se3_inverse
 from inference.solve import solve
 from pbdgrasp import bench_fixtures as bench
 from planning.scene import load_scene
+from planning.world import World
 from retarget.trajectory import Trajectory
 
 H_STEP = 1e-6  # [rad, m] the numerical Jacobians' central-difference step
@@ -131,3 +133,36 @@ def numerical_jacobian():
 def ham_top_down_model():
     """``ham_top_down_model(num_steps=40)``: the ham strategy built in code (see the module docstring)."""
     return _ham_top_down_model
+
+
+def _penetrations(scene, T_object_wrist, joints) -> list[dict[str, float]]:
+    """Per step of ``(T (T, 4, 4) object-frame wrist poses, joints (T, 13))``, the deepest signed distance
+    [m] of the hand to each scene body it penetrates (pybullet's ``World.hand_contacts``; by label)."""
+    out = []
+    with World(scene) as world:
+        for T, J in zip(T_object_wrist, joints, strict=True):
+            depth: dict[str, float] = {}
+            for c in world.hand_contacts(np.r_[q_from_pose(scene.T_world_object @ T), J]):
+                if c.distance_m < 0:
+                    depth[c.other] = min(depth.get(c.other, 0.0), c.distance_m)
+            out.append(depth)
+    return out
+
+
+@pytest.fixture(scope="session")
+def penetrations():
+    """``penetrations(scene, T_object_wrist, joints)``: per step, ``{body: deepest signed distance [m]}`` of
+    the hand's penetrations (pybullet, an implementation independent of the variation model's)."""
+    return _penetrations
+
+
+@pytest.fixture(scope="session")
+def wall_steps():
+    """``wall_steps(scene, model)``: the steps whose mean penetrates a scene body other than the grasped
+    object, by pybullet."""
+
+    def steps(scene, model) -> list[int]:
+        depths = _penetrations(scene, model.T_object_wrist_mean, model.joints_mean)
+        return [t for t, d in enumerate(depths) if set(d) - {scene.object.name}]
+
+    return steps

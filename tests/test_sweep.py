@@ -8,12 +8,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from assets.se3 import q_from_pose
 from inference.params import VariationParams
 from pbdgrasp.scene_model import learn_in_scene, scene_clearance
 from pbdgrasp.strategy import retarget_in_scene
 from planning.scene import load_scene
-from planning.world import World
 from retarget.demonstration import Demonstration
 from retarget.retargeting import RetargetConfig
 
@@ -33,30 +31,14 @@ def ham_arc_models():
     return scene, plain, swept
 
 
-def _wall_steps(scene, model) -> np.ndarray:
-    """The steps whose mean penetrates something other than the grasped object, by pybullet."""
-    with World(scene) as world:
-        return np.array(
-            [
-                t
-                for t, (T, J) in enumerate(zip(model.T_object_wrist_mean, model.joints_mean, strict=True))
-                if any(
-                    c.distance_m < 0 and c.other != scene.object.name
-                    for c in world.hand_contacts(np.r_[q_from_pose(scene.T_world_object @ T), J])
-                )
-            ],
-            dtype=int,
-        )
-
-
-def test_the_sweep_takes_the_means_out_of_the_wall(ham_arc_models):
+def test_the_sweep_takes_the_means_out_of_the_wall(ham_arc_models, wall_steps):
     """From tau_r a mean collides with a wall in pybullet (measured: step 48, the index in the right
     wall); from the sweep none does, the solve converges and the last step (the grasp) stays put."""
     scene, plain, swept = ham_arc_models
-    stuck = _wall_steps(scene, plain)
+    stuck = wall_steps(scene, plain)
     print("steps in the walls from tau_r:", stuck)
     assert len(stuck) and 48 in stuck
-    assert len(_wall_steps(scene, swept)) == 0
+    assert len(wall_steps(scene, swept)) == 0
     assert swept.converged
     clearance = scene_clearance(scene, grasp_type=swept.grasp_type)
     W = scene.T_world_object @ swept.T_object_wrist_mean

@@ -6,17 +6,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from assets.se3 import q_from_pose
 from pbdgrasp.scene_model import learn_in_scene
 from pbdgrasp.strategy import retarget_in_scene
 from planning.scene import load_scene
-from planning.world import World
 from retarget.demonstration import Demonstration
 from retarget.retargeting import RetargetConfig
-from tests.test_sweep import _wall_steps
 
 SCENE = Path(__file__).resolve().parents[1] / "assets" / "scenes" / "examples" / "ham_posts.yaml"
 
@@ -39,24 +35,15 @@ def test_the_example_scene_is_a_scene_by_path_not_a_table_row():
     assert {o.label for o in scene.obstacles} == {"post", "salt_box"}
 
 
-def test_the_model_solved_in_a_users_scene_keeps_its_means_out_of_the_obstacles(ham_in_posts):
+def test_the_model_solved_in_a_users_scene_keeps_its_means_out_of_the_obstacles(
+    ham_in_posts, penetrations, wall_steps
+):
     """tau_r passes the middle finger through the post (measured: steps 32-48, up to 26 mm deep), and so
     does the model solved without the post (22 steps); solved in the scene, the model converges and no
     mean penetrates the post or the box."""
     scene, traj, plain, adapted = ham_in_posts
-    with World(scene) as world:
-        depth = [
-            min(
-                (
-                    c.distance_m
-                    for c in world.hand_contacts(np.r_[q_from_pose(scene.T_world_object @ T), J])
-                    if c.other == "post"
-                ),
-                default=0.0,
-            )
-            for T, J in zip(traj.T_object_wrist, traj.joints, strict=True)
-        ]
-    assert min(depth) < -0.015, min(depth)
-    assert len(_wall_steps(scene, plain)) >= 10
+    depth = min(d.get("post", 0.0) for d in penetrations(scene, traj.T_object_wrist, traj.joints))
+    assert depth < -0.015, depth
+    assert len(wall_steps(scene, plain)) >= 10
     assert adapted.converged and adapted.iterations <= adapted.params.max_iterations
-    assert len(_wall_steps(scene, adapted)) == 0
+    assert len(wall_steps(scene, adapted)) == 0
