@@ -89,7 +89,11 @@ RETARGET_SOURCES = (
 )
 #: Sources inside those folders that no cached step runs: the demonstration generator only writes the
 #: demonstration files, whose contents are part of the retargeting key.
-UNCACHED_SOURCES = ("assets/demonstrations/generate.py",)
+UNCACHED_SOURCES = (
+    "assets/demonstrations/generate.py",
+    "assets/demonstrations/hand_geometry.py",
+    "assets/demonstrations/strategies.py",
+)
 
 
 def float_kernels() -> str:

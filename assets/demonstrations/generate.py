@@ -27,16 +27,27 @@ Everything random goes through one ``numpy.random.Generator``.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from scipy.optimize import least_squares
 
 import assets
-from assets import se3
+from assets import human_hand, se3
 from retarget.demonstration import FINGERS, RATE_HZ, Demonstration, default_object_prior
 from retarget.virtual_fingers import virtual_fingers_of
+
+from .hand_geometry import (
+    FINGER_RADIUS_M,
+    GenerationError,
+    HandSamples,
+    ObjectDistance,
+    hand_samples,
+    penetration,
+    sample_points,
+    to_object,
+)
+from .strategies import DEMONSTRATED_OBJECTS, STRATEGIES, Strategy
 
 __all__ = [
     "Strategy",
@@ -58,10 +69,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Radius of each finger's sample spheres (and its fingertip sphere) [m].
-FINGER_RADIUS_M = {"thumb": 0.009, "index": 0.008, "middle": 0.0085, "ring": 0.008, "little": 0.0075}
-#: Half the palm thickness: radius of the palm sample spheres [m].
-PALM_RADIUS_M = 0.014
 CONTACT_TOL_M = 0.002
 PENETRATION_TOL_M = 0.002
 #: Wrist start distance from the grasp [m]: where a human reach-to-grasp starts (30-40 cm away).
@@ -77,152 +84,6 @@ NOISE = {
     "position_noise": "added to the wrist position in the object frame",
     "contact_check": "on the noise-free motion (keys T_object_wrist_true, joints_true)",
 }
-_SAMPLES_PER_SEGMENT = 5
-
-
-class GenerationError(RuntimeError):
-    """The generated grasp violates the contact or penetration check (a bug in a strategy)."""
-
-
-def _hand():
-    from assets import human_hand
-
-    return human_hand
-
-
-class ObjectDistance:
-    """Signed distance to an object's watertight mesh (negative inside), in the object frame.
-
-    Args:
-        name: object name (``assets.objects()``).
-    """
-
-    def __init__(self, name: str):
-        mesh = o3d.io.read_triangle_mesh(str(assets.object_mesh(name)))
-        self.name = name
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-
-    def signed(self, p_object: np.ndarray) -> np.ndarray:
-        """Signed distances (...,) [m] of points ``p_object`` (..., 3)."""
-        p = np.asarray(p_object, dtype=np.float32)
-        d = self._scene.compute_signed_distance(o3d.core.Tensor(p.reshape(-1, 3))).numpy()
-        return d.astype(float).reshape(p.shape[:-1])
-
-    def closest(self, p_object: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Closest surface points (N, 3) and outward unit normals (N, 3) for points (N, 3)."""
-        p = np.asarray(p_object, dtype=np.float32).reshape(-1, 3)
-        ans = self._scene.compute_closest_points(o3d.core.Tensor(p))
-        c = ans["points"].numpy().astype(float)
-        n = ans["primitive_normals"].numpy().astype(float)
-        return c, n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
-@dataclass(frozen=True)
-class HandSamples:
-    """Sphere samples covering the human hand, found from the kinematics (no link names needed).
-
-    Attributes:
-        owner: (N,) finger index 0..4 (``FINGERS``) or 5 for the palm.
-        segment: (N,) 0..2 for the finger segment after each flexion joint, -1 for the palm.
-        radius: (N,) sphere radii [m].
-    """
-
-    owner: np.ndarray
-    segment: np.ndarray
-    radius: np.ndarray
-    flex_joints: dict = field(default_factory=dict)
-
-    def points(self, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Sample centres (..., N, 3) and fingertip sphere centres (..., 5, 3) in the wrist frame."""
-        return sample_points(joints)
-
-
-_LAYOUT: dict = {}
-
-
-def _layout():
-    """Finger chains from the FK: each link's finger and level (how many flexion joints move it)."""
-    if _LAYOUT:
-        return _LAYOUT
-    hand = _hand()
-    names = list(hand.JOINT_NAMES)
-    limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
-    j0 = np.clip(np.zeros(len(names)), limits[:, 0], limits[:, 1]) + 0.1
-    j0 = np.minimum(j0, limits[:, 1])
-    base = hand.fk(j0)
-    flex = {}
-    for f in FINGERS:
-        idx = [i for i, n in enumerate(names) if n.startswith(f + "_")]
-        flex[f] = [i for i in idx if not names[i].endswith("_abd")]
-        if len(flex[f]) != 3:
-            raise GenerationError(f"expected 3 flexion joints for {f}, found {[names[i] for i in flex[f]]}")
-    chains = {f: {} for f in FINGERS}
-    for link, T in base.items():
-        moved = []
-        for i in range(len(names)):
-            j = j0.copy()
-            j[i] += 0.05
-            if np.abs(hand.fk(j)[link] - T).max() > 1e-9:
-                moved.append(i)
-        for f in FINGERS:
-            if moved and all(i in flex[f] or names[i].startswith(f + "_") for i in moved):
-                level = sum(i in flex[f] for i in moved)
-                if level >= 1:
-                    chains[f].setdefault(level, []).append(link)
-    for f in FINGERS:
-        if sorted(chains[f]) != [1, 2, 3]:
-            raise GenerationError(f"could not find the 3 segments of {f} in the hand's FK: {chains[f]}")
-        # the segment starts at the joint: the link of that level nearest to the wrist
-        chains[f] = [min(chains[f][lv], key=lambda n: np.linalg.norm(base[n][:3, 3])) for lv in (1, 2, 3)]
-    _LAYOUT.update(chains=chains, flex=flex)
-    return _LAYOUT
-
-
-def sample_points(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Hand sample centres (..., N, 3) and fingertip sphere centres (..., 5, 3) in the wrist frame.
-
-    The layout (owner finger, segment, radius of each sample) is :func:`hand_samples`; a fingertip sphere
-    centre sits one finger radius behind ``human_hand.fingertip_positions`` along the distal segment.
-    """
-    hand = _hand()
-    lay = _layout()
-    frames = hand.fk(joints)
-    tips = hand.fingertip_positions(joints)
-    s = np.linspace(0.0, 1.0, _SAMPLES_PER_SEGMENT)
-    pts, centres, bases = [], [], []
-    for k, f in enumerate(FINGERS):
-        o = [frames[n][..., :3, 3] for n in lay["chains"][f]]
-        d = tips[..., k, :] - o[2]
-        centre = tips[..., k, :] - FINGER_RADIUS_M[f] * d / np.linalg.norm(d, axis=-1, keepdims=True)
-        ends = [o[0], o[1], o[2], centre]
-        for a, b in zip(ends[:-1], ends[1:], strict=True):
-            pts.append(a[..., None, :] + s[:, None] * (b - a)[..., None, :])
-        centres.append(centre)
-        bases.append(o[0])
-    wrist = np.zeros_like(bases[0])
-    for b in bases[1:]:  # palm: lines from the wrist to the four finger bases
-        pts.append(wrist[..., None, :] + np.linspace(0.25, 0.9, 4)[:, None] * (b - wrist)[..., None, :])
-    return np.concatenate(pts, axis=-2), np.stack(centres, axis=-2)
-
-
-def hand_samples() -> HandSamples:
-    """The layout of the samples returned by ``HandSamples.points``."""
-    owner, segment, radius = [], [], []
-    for k, f in enumerate(FINGERS):
-        for seg in range(3):
-            owner += [k] * _SAMPLES_PER_SEGMENT
-            segment += [seg] * _SAMPLES_PER_SEGMENT
-            radius += [FINGER_RADIUS_M[f]] * _SAMPLES_PER_SEGMENT
-    owner += [5] * 16
-    segment += [-1] * 16
-    radius += [PALM_RADIUS_M] * 16
-    return HandSamples(np.array(owner), np.array(segment), np.array(radius), dict(_layout()["flex"]))
-
-
-def _to_object(T_object_wrist: np.ndarray, p_wrist: np.ndarray) -> np.ndarray:
-    """Points (..., N, 3) of the wrist frame into the object frame, for one pose (4, 4)."""
-    return p_wrist @ T_object_wrist[:3, :3].T + T_object_wrist[:3, 3]
 
 
 def min_jerk(s: np.ndarray) -> np.ndarray:
@@ -240,154 +101,6 @@ def correlated_noise(rng: np.random.Generator, n: int, dim: int, sigma: float, d
     for t in range(1, n):
         x[t] = a * x[t - 1] + sigma * np.sqrt(1.0 - a * a) * w[t]
     return x
-
-
-def _frame(x_w, y_w) -> np.ndarray:
-    """R_object_wrist from the wrist's x (palm normal) and y (thumb side) axes in the object frame."""
-    x = np.asarray(x_w, float) / np.linalg.norm(x_w)
-    y = np.asarray(y_w, float) - np.dot(y_w, x) * x
-    y /= np.linalg.norm(y)
-    return np.column_stack([x, y, np.cross(x, y)])
-
-
-def _cyl(radius: float, phi_deg: float, z: float) -> tuple[float, float, float]:
-    phi = np.deg2rad(phi_deg)
-    return (radius * np.cos(phi), radius * np.sin(phi), z)
-
-
-@dataclass(frozen=True)
-class Strategy:
-    """A grasping strategy: where the fingers go and how the hand comes in.
-
-    Attributes:
-        object: object name.
-        grasp_type: ``"precision"`` or ``"power"``.
-        description: one line for the file header.
-        R_object_wrist: (3, 3) preferred final wrist orientation.
-        p_object_wrist: (3,) initial guess of the final wrist position [m].
-        targets: finger -> a point near the surface where its fingertip should land [m, object frame].
-        approach: (3,) direction from the grasp towards the pre-grasp (object frame).
-        palm_gap_m: for power grasps, the wanted distance of the palm samples' surface to the object.
-        standoff_m: fingertip stand-off of the fit before closing.
-        duration_s: length of the demonstration.
-        orientation_sigma_rad: how strongly the fit keeps the preferred orientation.
-    """
-
-    object: str
-    grasp_type: str
-    description: str
-    R_object_wrist: np.ndarray
-    p_object_wrist: np.ndarray
-    targets: dict
-    approach: np.ndarray
-    palm_gap_m: float | None = None
-    standoff_m: float = 0.006
-    duration_s: float = 3.0
-    orientation_sigma_rad: float = float(np.deg2rad(15.0))
-
-
-def _strategies() -> dict[str, Strategy]:
-    down = (0.0, 0.0, -1.0)
-    S = {}
-    # Ham can (10 x 5.5 x 8 cm): straight from above, palm down, fingers close to the tin; thumb on the
-    # +y face, index and little on the rounded vertical edges, middle and ring on the flat -y face, all
-    # at about mid-height (contacts near the top edge let the SAH's closing fingers slip over it).
-    S["ham"] = Strategy(
-        "ham",
-        "precision",
-        "straight from above, fingers close to the can: thumb on one long side, index and little on the "
-        "rounded corners, middle and ring on the opposite long side, at about mid-height",
-        _frame(down, (1.0, 0.0, 0.0)),
-        np.array([0.0, 0.055, 0.13]),
-        {
-            "thumb": (0.0, 0.03, 0.045),
-            "index": (0.045, -0.026, 0.045),
-            "middle": (0.012, -0.03, 0.042),
-            "ring": (-0.013, -0.03, 0.042),
-            "little": (-0.045, -0.026, 0.047),
-        },
-        np.array([0.0, 0.0, 1.0]),
-    )
-    # Jam jar (7 cm diameter, 9 cm high): from above, fingertips around the jar's body below the lid;
-    # ring and little close together.
-    S["jam"] = Strategy(
-        "jam",
-        "precision",
-        "from above, fingertips around the jar below the lid: thumb opposite the four fingers, ring and "
-        "little close together",
-        _frame(down, (0.0, -1.0, 0.0)),
-        np.array([0.06, 0.0, 0.18]),
-        {
-            "thumb": _cyl(0.037, 5, 0.055),
-            "index": _cyl(0.037, 235, 0.055),
-            "middle": _cyl(0.037, 195, 0.055),
-            "ring": _cyl(0.037, 158, 0.055),
-            "little": _cyl(0.037, 136, 0.055),
-        },
-        np.array([0.0, 0.0, 1.0]),
-    )
-    # Small cup (8 cm diameter, handle at +x): by its body from above, away from the handle.
-    S["small_cup"] = Strategy(
-        "small_cup",
-        "precision",
-        "by its body from above, away from the handle: thumb on the +y side, fingers around the -y side",
-        # The thumb side towards +y (tilted 17 deg away from the handle). With it towards +x, as before,
-        # the fit put the thumb on the handle side with a normal 31-81 deg from the fingers': no opposition.
-        _frame(down, (-0.3, 1.0, 0.0)),
-        np.array([0.0, 0.0, 0.17]),
-        {
-            "thumb": _cyl(0.042, 95, 0.055),
-            "index": _cyl(0.042, 325, 0.055),
-            "middle": _cyl(0.042, 285, 0.055),
-            "ring": _cyl(0.042, 248, 0.055),
-            "little": _cyl(0.042, 226, 0.055),
-        },
-        np.array([0.0, 0.0, 1.0]),
-    )
-    # Chips can (7.5 cm diameter, 23 cm high): a cylindrical power grasp from the side, thumb up. The palm
-    # lies on the -x side; the fingers wrap round the -y side towards +x, the thumb round the +y side the
-    # other way, above the index, so that its contact opposes theirs (136 deg from their mean normal).
-    side = np.array([-1.0, 0.0, 0.0])
-    S["chips"] = Strategy(
-        "chips",
-        "power",
-        "wrapped from the side, thumb up: palm on the can, fingers round one side, thumb round the other",
-        _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.054, 0.07, 0.11]),
-        {
-            "thumb": _cyl(0.039, 70, 0.17),
-            "index": _cyl(0.039, 315, 0.14),
-            "middle": _cyl(0.039, 330, 0.12),
-            "ring": _cyl(0.039, 318, 0.10),
-            "little": _cyl(0.039, 315, 0.08),
-        },
-        side,
-        palm_gap_m=0.002,
-    )
-    # Salt box (9 x 6 x 14 cm): power grasp from the side, thumb up, palm on the narrow -x face, the
-    # fingers round its edge onto the -y face, the thumb round the other edge onto the +y face.
-    S["salt"] = Strategy(
-        "salt",
-        "power",
-        "from the side, thumb up: palm on the narrow face, fingers wrapped onto one wide face, thumb on the "
-        "other",
-        _frame((1.0, 0.0, 0.0), (0.0, 0.0, 1.0)),
-        np.array([-0.063, 0.062, 0.06]),
-        {
-            "thumb": (-0.008, 0.032, 0.11),
-            "index": (0.01, -0.032, 0.09),
-            "middle": (0.02, -0.032, 0.075),
-            "ring": (0.01, -0.032, 0.055),
-            "little": (0.0, -0.032, 0.04),
-        },
-        side,
-        palm_gap_m=0.002,
-    )
-    return S
-
-
-STRATEGIES: dict[str, Strategy] = _strategies()
-DEMONSTRATED_OBJECTS = tuple(STRATEGIES)
 
 
 @dataclass(frozen=True)
@@ -415,14 +128,6 @@ class GraspReport:
     virtual_fingers: str = ""
 
 
-def _penetration(dist: ObjectDistance, T: np.ndarray, J: np.ndarray, radius: np.ndarray):
-    pts, centres = sample_points(J)
-    sd = dist.signed(_to_object(T, pts)) - radius
-    rt = np.array([FINGER_RADIUS_M[f] for f in FINGERS])
-    gaps = dist.signed(_to_object(T, centres)) - rt
-    return sd, gaps
-
-
 #: Restarts of the grasp fit. It starts from the natural posture (no abduction, 0.6 rad flexion); when a
 #: fingertip ends farther than ``_FIT_RESTART_MISS_M`` from its goal, it runs again from each thumb posture
 #: (cmc_abd, cmc_flex, mcp, ip) [rad] of ``_THUMB_STARTS`` (abducted to its limit; straight, or slightly
@@ -439,7 +144,7 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
     The fit runs from the natural posture; if a fingertip then misses its goal by more than
     ``_FIT_RESTART_MISS_M``, also from each of ``_THUMB_STARTS``, and the lowest cost wins.
     """
-    hand = _hand()
+    hand = human_hand
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
     names = list(hand.JOINT_NAMES)
     fingers = [f for f in FINGERS if f in strategy.targets]
@@ -460,9 +165,9 @@ def _fit(strategy: Strategy, dist: ObjectDistance, samples: HandSamples) -> tupl
     def residuals(x):
         T, J = unpack(x)
         pts, centres = sample_points(J)
-        sd = dist.signed(_to_object(T, pts)) - samples.radius
+        sd = dist.signed(to_object(T, pts)) - samples.radius
         r = [
-            ((_to_object(T, centres[kk]) - goal) / tip_sigma_m).ravel(),
+            ((to_object(T, centres[kk]) - goal) / tip_sigma_m).ravel(),
             np.maximum(0.0, 0.002 - sd) / 0.0005,
             x[:3] / strategy.orientation_sigma_rad,
             (J - pref) / 1.5,
@@ -501,7 +206,7 @@ def _refit_finger(
     k: int, strategy: Strategy, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, samples: HandSamples
 ) -> np.ndarray:
     """Re-fit one finger's 4 joints (wrist and other fingers fixed) with its fingertip on its target."""
-    hand = _hand()
+    hand = human_hand
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
     f = FINGERS[k]
     idx = np.array([i for i, nm in enumerate(hand.JOINT_NAMES) if nm.startswith(f + "_")])
@@ -513,8 +218,8 @@ def _refit_finger(
         Jx = J.copy()
         Jx[idx] = x
         pts, centres = sample_points(Jx)
-        sd = dist.signed(_to_object(T, pts[mine])) - samples.radius[mine]
-        return np.concatenate([(_to_object(T, centres[k]) - goal) / 0.002, np.maximum(0.0, -sd) / 0.0005])
+        sd = dist.signed(to_object(T, pts[mine])) - samples.radius[mine]
+        return np.concatenate([(to_object(T, centres[k]) - goal) / 0.002, np.maximum(0.0, -sd) / 0.0005])
 
     sol = least_squares(residuals, J[idx], bounds=(limits[idx, 0], limits[idx, 1]), max_nfev=200)
     out = J.copy()
@@ -524,7 +229,7 @@ def _refit_finger(
 
 def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, samples: HandSamples):
     """Close finger ``k``'s flexion joints until its fingertip touches (autoGrasp with link stops)."""
-    hand = _hand()
+    hand = human_hand
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
     idx = np.array(samples.flex_joints[FINGERS[k]])
     rate = np.array([1.0, 1.0, 0.8])
@@ -538,7 +243,7 @@ def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, sa
             J[idx[active]] + s * rate[active], limits[idx[active], 0], limits[idx[active], 1]
         )
         pts, _ = sample_points(Js)
-        sd = dist.signed(_to_object(T, pts[mine])) - samples.radius[mine]
+        sd = dist.signed(to_object(T, pts[mine])) - samples.radius[mine]
         return Js, sd
 
     for _ in range(3):
@@ -574,7 +279,7 @@ def _close_finger(k: int, T: np.ndarray, J: np.ndarray, dist: ObjectDistance, sa
 
 
 def _trajectory(strategy: Strategy, T_final: np.ndarray, J_final: np.ndarray, samples: HandSamples):
-    hand = _hand()
+    hand = human_hand
     limits = np.asarray(hand.JOINT_LIMITS, dtype=float)
     n = int(round(strategy.duration_s * RATE_HZ)) + 1
     t = np.arange(n) / RATE_HZ
@@ -634,14 +339,14 @@ def generate(
     for k, f in enumerate(FINGERS):
         if f in st.targets:
             J = _close_finger(k, T, J, dist, samples)
-    _, gaps = _penetration(dist, T, J, samples.radius)
+    _, gaps = penetration(dist, T, J, samples.radius)
     for _ in range(3):  # a finger whose closing missed the object: aim it, then close again
         for k, f in enumerate(FINGERS):
             if f in st.targets and abs(gaps[k]) > 0.5 * CONTACT_TOL_M:
                 log.debug("%s: %s missed by %.1f mm after closing; re-fitting it", name, f, gaps[k] * 1e3)
                 J = _close_finger(k, T, _refit_finger(k, st, T, J, dist, samples), dist, samples)
-        _, gaps = _penetration(dist, T, J, samples.radius)
-    sd, gaps = _penetration(dist, T, J, samples.radius)
+        _, gaps = penetration(dist, T, J, samples.radius)
+    sd, gaps = penetration(dist, T, J, samples.radius)
     contact = [k for k, f in enumerate(FINGERS) if f in st.targets]
     if np.abs(gaps[contact]).max() > CONTACT_TOL_M or -sd.min() > PENETRATION_TOL_M:
         raise GenerationError(
@@ -649,11 +354,11 @@ def generate(
             f"(tolerances {CONTACT_TOL_M * 1e3} / {PENETRATION_TOL_M * 1e3} mm)"
         )
     t, T_true, J_true = _trajectory(st, T, J, samples)
-    pen_traj = max(-_penetration(dist, T_true[i], J_true[i], samples.radius)[0].min() for i in range(len(t)))
+    pen_traj = max(-penetration(dist, T_true[i], J_true[i], samples.radius)[0].min() for i in range(len(t)))
     if pen_traj > PENETRATION_TOL_M:
         raise GenerationError(f"{name}: the approach penetrates the object by {pen_traj * 1e3:.2f} mm")
     _, centres = sample_points(J)
-    _, normals = dist.closest(_to_object(T, centres))
+    _, normals = dist.closest(to_object(T, centres))
     opp = normals[1:]
     ang = np.degrees(np.arccos(np.clip(opp @ opp.T, -1.0, 1.0)))
     off = ang + np.eye(4) * 1e9
