@@ -166,3 +166,74 @@ def wall_steps():
         return [t for t, d in enumerate(depths) if set(d) - {scene.object.name}]
 
     return steps
+
+
+def _dense_joint_chain(traj, params, extra, full=False):
+    """Means (n, 13) and covariances of the joints' linear-Gaussian chain (block-diagonal f_1t, smoothness
+    S_t), solved densely with numpy, with extra scalar priors ``extra[(t, i)] = [(value, variance), ...]``
+    on J_t,i: the per-step blocks (n, 13, 13), or with ``full`` the whole (13 n, 13 n) covariance, index
+    ``13 t + i`` for J_t,i."""
+    from inference import factor_covariances
+
+    n = traj.num_steps
+    cov_f1 = factor_covariances(traj, params)
+    D = np.linalg.inv(np.diag(params.smoothness_stds()[6:] ** 2))
+    Lam, eta = np.zeros((13 * n, 13 * n)), np.zeros(13 * n)
+    for t in range(n):
+        P = np.linalg.inv(cov_f1[t][6:, 6:])
+        Lam[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] += P
+        eta[13 * t : 13 * t + 13] += P @ traj.joints[t]
+    for t in range(n - 1):
+        a, b = slice(13 * t, 13 * t + 13), slice(13 * t + 13, 13 * t + 26)
+        Lam[a, a] += D
+        Lam[b, b] += D
+        Lam[a, b] -= D
+        Lam[b, a] -= D
+    for (t, i), priors in extra.items():
+        for value, variance in priors:
+            Lam[13 * t + i, 13 * t + i] += 1.0 / variance
+            eta[13 * t + i] += value / variance
+    cov = np.linalg.inv(Lam)
+    mean = (cov @ eta).reshape(n, 13)
+    if full:
+        return mean, cov
+    return mean, np.stack([cov[13 * t : 13 * t + 13, 13 * t : 13 * t + 13] for t in range(n)])
+
+
+@pytest.fixture(scope="session")
+def dense_joint_chain():
+    return _dense_joint_chain
+
+
+class _Planes:
+    """A toy clearance function: margins ``n_k . p - b_k`` of the wrist position p [m] (rows k), or, with
+    ``joint_rows``, ``slope_k (J[i_k] - w_k)`` of single joints; analytic Jacobians; batched over leading
+    axes like :class:`inference.clearance.HandClearance`."""
+
+    def __init__(self, normals=(), offsets=(), joint_rows=()):
+        self.normals = np.asarray(normals, dtype=float).reshape(-1, 3)
+        self.offsets = np.asarray(offsets, dtype=float)
+        self.joint_rows = list(joint_rows)  # (joint index, slope, wall)
+        self.dim = len(self.normals) + len(self.joint_rows)
+        self.active_margin_m = np.inf  # every margin exact, with its Jacobian
+
+    def __call__(self, T_world_object, T_world_wrist, joints, jacobians=False):
+        p, R = T_world_wrist[..., :3, 3], T_world_wrist[..., :3, :3]
+        rows = [k * (joints[..., i] - w) for i, k, w in self.joint_rows]
+        margins = np.concatenate(
+            [p @ self.normals.T - self.offsets, np.stack(rows, -1) if rows else p[..., :0]], -1
+        )
+        if not jacobians:
+            return margins
+        batch = margins.shape[:-1]
+        H_W, H_J = np.zeros(batch + (self.dim, 6)), np.zeros(batch + (self.dim, 13))
+        H_W[..., : len(self.normals), 3:] = self.normals @ R  # a body twist v moves p by R v
+        for r, (i, k, _) in enumerate(self.joint_rows):
+            H_J[..., len(self.normals) + r, i] = k
+        return margins, np.zeros(batch + (self.dim, 6)), H_W, H_J
+
+
+@pytest.fixture(scope="session")
+def planes():
+    """The toy clearance class :class:`_Planes`."""
+    return _Planes
