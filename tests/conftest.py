@@ -237,3 +237,32 @@ class _Planes:
 def planes():
     """The toy clearance class :class:`_Planes`."""
     return _Planes
+
+
+@pytest.fixture(scope="session")
+def ep_exact():
+    """Variation parameters under which the joint-limit sites are exact: steps independent (no smoothness
+    coupling), no joint floor, a tight tolerance."""
+    from inference.params import VariationParams
+
+    return VariationParams(
+        sigma_m_std_config=[0.02] * 6 + list(np.linspace(0.02, 0.08, 13)),
+        smoothness_std_config=[1e3] * 19,  # steps independent: one site per joint and step, EP exact
+        joint_floor_std_deg=0.0,
+        joint_limit_tolerance=1e-12,
+        joint_limit_max_iterations=500,
+    )
+
+
+@pytest.fixture(scope="session")
+def independent_joints_traj():
+    """``independent_joints_traj(make_traj, joints, n=2)``: n steps at the joint values ``joints`` (13,),
+    no retargeting covariance; with ``ep_exact`` every joint's f_1t is an independent N(joints_i,
+    sigma_i^2)."""
+    import dataclasses
+
+    def traj(make_traj, joints, n=2):
+        plain = make_traj(n=n, coupled=False, seed=3)
+        return dataclasses.replace(plain, joints=np.tile(joints, (n, 1)), cov_retarget=np.zeros((n, 19, 19)))
+
+    return traj

@@ -11,31 +11,32 @@ import pytest
 from inference.factors import clearance_error
 from inference.params import VariationParams
 from inference.solve import solve
-from tests.test_inference_model import EP_EXACT, _dense_joint_chain_full, _independent_joints_traj, _Planes
 
 
-def _chain(make_traj, n=6):
-    traj = _independent_joints_traj(make_traj, np.full(13, 0.3), n)
+def _chain(make_traj, independent_joints_traj, n=6):
+    traj = independent_joints_traj(make_traj, np.full(13, 0.3), n)
     joints = traj.joints.copy()
     joints[:, 0] = np.linspace(-0.015, 0.02, n)  # crossing the wall J_0 >= 0
     return dataclasses.replace(traj, joints=joints)
 
 
-def test_sites_on_a_chain_agree_with_rejection_sampling_of_the_truncated_posterior(make_traj):
+def test_sites_on_a_chain_agree_with_rejection_sampling_of_the_truncated_posterior(
+    make_traj, ep_exact, independent_joints_traj, dense_joint_chain, planes
+):
     """Six steps of joint 0 coupled by smoothness, a wall ``margin = J_0 >= 0`` that the demonstration
     crosses. The exact posterior is the Gaussian chain times the hinge factors, truncated to ``J_0 >= 0`` at
     every step: sampled by rejection and weighted by the hinges' likelihood. The sites' marginal means and
     stds of J_0 agree with it to a few hundredths of the chain's std; the hinges alone leave the means more
     than half a std off."""
     n = 6
-    params = dataclasses.replace(EP_EXACT, smoothness_std_config=[0.01] * 19, clearance_sites=True)
-    traj = _chain(make_traj, n)
-    wall = _Planes(joint_rows=[(0, 1.0, 0.0)])
+    params = dataclasses.replace(ep_exact, smoothness_std_config=[0.01] * 19, clearance_sites=True)
+    traj = _chain(make_traj, independent_joints_traj, n)
+    wall = planes(joint_rows=[(0, 1.0, 0.0)])
     hinges = solve(traj, dataclasses.replace(params, clearance_sites=False), clearance=wall)
     held = solve(traj, dataclasses.replace(params, clearance_site_tolerance=1e-4), clearance=wall)
     assert held.converged
     rng = np.random.default_rng(0)
-    mean0, cov_all = _dense_joint_chain_full(traj, params, {})
+    mean0, cov_all = dense_joint_chain(traj, params, {}, full=True)
     cov6 = cov_all[0::13, 0::13]
     draws = rng.multivariate_normal(mean0[:, 0], cov6, size=1_000_000)
     kept = draws[np.all(draws >= 0.0, axis=1)]
@@ -55,11 +56,11 @@ def test_sites_on_a_chain_agree_with_rejection_sampling_of_the_truncated_posteri
     assert np.all(np.abs(hinges.joints_mean[:, 0] - mean) > 0.4 * sd)
 
 
-def test_sites_are_inactive_far_from_the_wall(make_traj):
+def test_sites_are_inactive_far_from_the_wall(make_traj, ep_exact, independent_joints_traj, planes):
     """With the wall 10 sigma below every mean no row gets a site: the marginals are the hinges' alone."""
-    params = dataclasses.replace(EP_EXACT, smoothness_std_config=[0.01] * 19, clearance_sites=True)
-    traj = _chain(make_traj)
-    wall = _Planes(joint_rows=[(0, 1.0, -5.0)])
+    params = dataclasses.replace(ep_exact, smoothness_std_config=[0.01] * 19, clearance_sites=True)
+    traj = _chain(make_traj, independent_joints_traj)
+    wall = planes(joint_rows=[(0, 1.0, -5.0)])
     off = solve(traj, dataclasses.replace(params, clearance_sites=False), clearance=wall)
     on = solve(traj, params, clearance=wall)
     np.testing.assert_allclose(on.joints_mean, off.joints_mean, atol=1e-9)

@@ -84,35 +84,21 @@ def test_joint_0_against_a_wall_gives_the_gaussian_update_or_nothing(
     np.testing.assert_allclose(model.cov[:, 6:, 6:], cov, rtol=1e-6, atol=1e-12)
 
 
-EP_EXACT = VariationParams(
-    sigma_m_std_config=[0.02] * 6 + list(np.linspace(0.02, 0.08, 13)),
-    smoothness_std_config=[1e3] * 19,  # steps independent: one site per joint and step, EP exact
-    joint_floor_std_deg=0.0,
-    joint_limit_tolerance=1e-12,
-    joint_limit_max_iterations=500,
-)
-
-
-def _independent_joints_traj(make_traj, joints, n=2):
-    """n steps at the joint values ``joints`` (13,), no retargeting covariance: with ``EP_EXACT`` every
-    joint's f_1t is an independent N(joints_i, sigma_i^2)."""
-    traj = make_traj(n=n, coupled=False, seed=3)
-    return dataclasses.replace(traj, joints=np.tile(joints, (n, 1)), cov_retarget=np.zeros((n, 19, 19)))
-
-
-def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints(make_traj):
+def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints(
+    make_traj, ep_exact, independent_joints_traj
+):
     """Steps without smoothness coupling, independent joints N(tau_i, sigma_i^2): the posterior of each joint
     under the limits is that normal truncated to [lo, hi], and expectation propagation with one site per
     joint is exact. Joint 0 sits 0.2 sigma inside its lower limit, joint 1 half a sigma beyond its upper
     one, joint 2 two sigma beyond its lower one; the others are far inside and untouched."""
     from scipy.stats import truncnorm
 
-    sigma = np.array(EP_EXACT.sigma_m_std_config[6:])
+    sigma = np.array(ep_exact.sigma_m_std_config[6:])
     lo, hi = np.full(13, -1.0), np.full(13, 1.0)
     lo[:3], hi[:3] = [0.0, -0.5, 0.1], [0.6, 0.2, 0.9]
     tau = np.full(13, 0.3)
     tau[:3] = [lo[0] + 0.2 * sigma[0], hi[1] + 0.5 * sigma[1], lo[2] - 2.0 * sigma[2]]
-    model = solve(_independent_joints_traj(make_traj, tau), EP_EXACT, joint_limits=np.stack([lo, hi], axis=1))
+    model = solve(independent_joints_traj(make_traj, tau), ep_exact, joint_limits=np.stack([lo, hi], axis=1))
     mean, var = truncnorm.stats((lo - tau) / sigma, (hi - tau) / sigma, loc=tau, scale=sigma, moments="mv")
     for t in range(2):
         np.testing.assert_allclose(model.joints_mean[t], mean, rtol=0, atol=1e-9)
@@ -123,15 +109,17 @@ def test_joint_limits_give_the_truncated_normal_moments_for_independent_joints(m
     assert 0.55 * sigma[0] < math.sqrt(model.cov[0][6, 6]) < sigma[0]
 
 
-def test_joint_limits_on_a_chain_agree_with_rejection_sampling(make_traj, dense_joint_chain):
+def test_joint_limits_on_a_chain_agree_with_rejection_sampling(
+    make_traj, dense_joint_chain, ep_exact, independent_joints_traj
+):
     """Six steps of joint 0 coupled by the smoothness factors, its demonstrated values crossing the lower
     limit; the true posterior is the Gaussian chain truncated to [lo, hi] at every step, sampled here by
     rejection (2e5 accepted draws). Expectation propagation's marginal means and stds agree with it to a
     few hundredths of the chain's std; without the limits the means cross the limit."""
     n, lo0 = 6, 0.0
     tau = np.full(13, 0.3)
-    params = dataclasses.replace(EP_EXACT, smoothness_std_config=[0.01] * 19)
-    traj = _independent_joints_traj(make_traj, tau, n)
+    params = dataclasses.replace(ep_exact, smoothness_std_config=[0.01] * 19)
+    traj = independent_joints_traj(make_traj, tau, n)
     joints = traj.joints.copy()
     joints[:, 0] = np.linspace(-0.015, 0.02, n)
     traj = dataclasses.replace(traj, joints=joints)

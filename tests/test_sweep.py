@@ -47,13 +47,12 @@ def test_the_sweep_takes_the_means_out_of_the_wall(ham_arc_models, wall_steps):
     assert moved < 0.005
 
 
-def test_no_sweep_where_nothing_penetrates(make_traj):
+def test_no_sweep_where_nothing_penetrates(make_traj, planes):
     """A clearance that nothing penetrates: the model is the same with and without the sweep."""
     from inference.solve import solve
-    from tests.test_inference_model import _Planes
 
     traj = make_traj(n=4, seed=2)
-    floor = _Planes([[0, 0, 1]], [-10.0])
+    floor = planes([[0, 0, 1]], [-10.0])
     a = solve(traj, VariationParams(), clearance=floor)
     b = solve(traj, dataclasses.replace(VariationParams(), backward_sweep=False), clearance=floor)
     np.testing.assert_array_equal(a.cov, b.cov)
