@@ -134,6 +134,7 @@ FILE_OUTPUTS = {
     "learn -o": (["learn", "ham", "-o", "{out}"], ".model.npz"),
     "learn --trajectory": (["learn", "ham", "-o", "m.model.npz", "--trajectory", "{out}"], ".traj.npz"),
     "inspect --plot": (["inspect", "m.model.npz", "--scene", "ham", "--plot", "{out}"], ".png"),
+    "ceiling -o": (["ceiling", "--scene", "ham", "-o", "{out}"], ".json"),
     "bench -o": (["bench", "--quick", "-o", "{out}"], ".json"),
     "demo import -o": (["demo", "import", "k.npz", "--object", "ham", "-o", "{out}"], ".npz"),
     "table1 --db": (["table1", "--quick", "--db", "{out}"], ".sqlite"),

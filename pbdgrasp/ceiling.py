@@ -1,0 +1,303 @@
+"""How well can the SAH hold an object at all? A grasp-quality ceiling, independent of any strategy.
+
+:func:`grasp_ceiling` places the hand at random about the object of a scene, closes it there the way the
+planner's goal test does (:class:`planning.autograsp.HandCloser`: GraspIt!'s autograsp, then the L1
+epsilon quality) and reports how often a collision-free pose closes to a valid grasp and how good the
+grasps are. The best ones are then refined by hill climbing on epsilon, and each refined pose is shaken
+by a small wrist perturbation to tell a robust grasp from a knife edge. It answers, before any learning,
+whether a figure asked of a strategy (a quality, a fraction of valid draws) is within the hand's reach.
+
+Sampling (object frame): a point ``p`` on the object's surface, area-uniform on its visual mesh, with its
+outward normal ``n``; the palm's normal (the SAH wrist's +x axis, out of the palm) within ``cone_deg`` of
+``-n``, uniformly on that spherical cap; a roll about it uniform; the hand's grasp centre at ``p + s n``
+with the standoff ``s`` uniform in ``standoff_m``, the grasp centre uniform on the hand's axis from the
+palm centre (:func:`retarget.objective.palm_centre`) to ``reach_beyond_knuckles_m`` beyond the knuckles;
+the fingers at the SAH's rest pose (:func:`assets.sah.rest_joints`) with the thumb's opposition uniform
+within its joint limits. Poses are then placed in the scene's object pose; collisions
+count against every body of the scene (table, obstacles, the object, the hand itself).
+
+Refinement: from each of the ``refine_best`` best valid samples, ``refine_iterations`` proposals of a
+Gaussian wrist step (``refine_step_m``, ``refine_step_deg``) and thumb-opposition step; a proposal is kept
+when it is collision-free and closes better. Robustness: ``perturb_draws`` draws of a wrist perturbation
+(``perturb_m`` per axis, ``perturb_deg`` about a random axis) about each refined pose; a colliding draw
+scores 0.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+import assets
+from assets import sah
+from assets.errors import InputError
+from assets.se3 import pose_from_q, q_from_pose
+from planning.autograsp import AutoGraspConfig, HandCloser
+from planning.collision import CollisionChecker
+from planning.scene import Scene
+from planning.world import World
+from retarget.objective import palm_centre
+
+__all__ = ["CeilingConfig", "Ceiling", "grasp_ceiling", "surface_samples", "wrist_poses"]
+
+THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
+
+
+@dataclass(frozen=True)
+class CeilingConfig:
+    """Settings of :func:`grasp_ceiling` (module docstring); lengths [m], angles [deg].
+
+    Raises:
+        InputError: a count below its minimum, or a range or angle out of bounds.
+    """
+
+    samples: int = 100_000
+    standoff_m: tuple[float, float] = (0.01, 0.06)
+    reach_beyond_knuckles_m: float = 0.03
+    cone_deg: float = 30.0
+    epsilon: float = 0.05
+    refine_best: int = 20
+    refine_iterations: int = 200
+    refine_step_m: float = 0.002
+    refine_step_deg: float = 2.0
+    perturb_m: float = 0.001
+    perturb_deg: float = 1.0
+    perturb_draws: int = 50
+
+    def __post_init__(self):
+        lo, hi = self.standoff_m
+        if self.samples < 1 or self.refine_best < 0 or self.refine_iterations < 0 or self.perturb_draws < 1:
+            raise InputError(
+                "ceiling: need samples >= 1, refine_best >= 0, refine_iterations >= 0, perturb_draws >= 1"
+            )
+        if not (0.0 <= lo <= hi <= 0.2):
+            raise InputError(
+                f"ceiling: standoff_m must satisfy 0 <= lo <= hi <= 0.2 m, found {self.standoff_m}"
+            )
+        if not (0.0 <= self.cone_deg <= 90.0 and 0.0 < self.epsilon < 1.0):
+            raise InputError("ceiling: need cone_deg in [0, 90] and epsilon in (0, 1)")
+        steps = (self.refine_step_m, self.refine_step_deg, self.perturb_m, self.perturb_deg)
+        steps += (self.reach_beyond_knuckles_m,)
+        if not all(np.isfinite(v) and v >= 0.0 for v in steps):
+            raise InputError(f"ceiling: steps and perturbations must be finite and >= 0, found {steps}")
+
+
+@dataclass(frozen=True)
+class Ceiling:
+    """What :func:`grasp_ceiling` measured.
+
+    Attributes:
+        scene, object: the scene's name and its object.
+        tried, free, valid: sampled poses, collision-free ones, ones that closed to epsilon >= ``epsilon``.
+        valid_quantiles: epsilon of the valid samples at the median, the 95th percentile and the maximum
+            (empty where none was valid).
+        refined: the refined poses' epsilon, best first.
+        refined_q: (k, 19) the refined poses, world frame [m, rad], in the order of ``refined``.
+        robust_mean, robust_valid: per refined pose, the mean epsilon and the valid fraction of its
+            perturbed draws.
+        epsilon: the validity threshold.
+        seconds: wall time.
+    """
+
+    scene: str
+    object: str
+    tried: int
+    free: int
+    valid: int
+    valid_quantiles: tuple[float, ...]
+    refined: tuple[float, ...]
+    refined_q: tuple[tuple[float, ...], ...]
+    robust_mean: tuple[float, ...]
+    robust_valid: tuple[float, ...]
+    epsilon: float
+    seconds: float
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        share = self.valid / self.free if self.free else 0.0
+        lines = [
+            f"{self.object} in {self.scene}: {self.tried} poses, {self.free} collision-free, {self.valid} "
+            f"valid (epsilon >= {self.epsilon:g}; {share:.3%} of the free), {self.seconds:.0f} s",
+        ]
+        if self.valid_quantiles:
+            med, p95, top = self.valid_quantiles
+            lines.append(f"valid samples: median {med:.3f}, p95 {p95:.3f}, max {top:.3f}")
+        if self.refined:
+            best = np.argsort(self.robust_mean)[::-1][0]
+            lines.append(
+                "refined: "
+                + ", ".join(f"{e:.3f}" for e in self.refined[:5])
+                + (" ..." if len(self.refined) > 5 else "")
+            )
+            lines.append(
+                f"robust best: mean epsilon {self.robust_mean[best]:.3f} under the perturbation "
+                f"({self.robust_valid[best]:.0%} valid), refined {self.refined[best]:.3f}"
+            )
+        return "\n".join(lines)
+
+
+def surface_samples(vertices: np.ndarray, triangles: np.ndarray, n: int, rng: np.random.Generator):
+    """``n`` area-uniform points (n, 3) on a triangle mesh and their unit outward normals (n, 3).
+
+    The normals are the triangles' (right-handed vertex order, as the shipped meshes are written).
+    """
+    v = np.asarray(vertices, dtype=float)[np.asarray(triangles)]
+    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    if not area.sum() > 0:
+        raise InputError("surface_samples: the mesh has no area")
+    k = rng.choice(len(v), size=n, p=area / area.sum())
+    a, b = rng.random((2, n))
+    flip = a + b > 1.0
+    a[flip], b[flip] = 1.0 - a[flip], 1.0 - b[flip]
+    points = v[k, 0] + a[:, None] * (v[k, 1] - v[k, 0]) + b[:, None] * (v[k, 2] - v[k, 0])
+    return points, cross[k] / np.linalg.norm(cross[k], axis=1, keepdims=True)
+
+
+def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (n, 3) each, completing the unit ``axis`` (n, 3) to a right-handed basis."""
+    helper = np.where(np.abs(axis[:, [2]]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(axis, u)
+
+
+def wrist_poses(points, normals, config: CeilingConfig, rng: np.random.Generator) -> np.ndarray:
+    """Object-frame wrist poses (n, 4, 4) whose palm faces the surface ``points`` (n, 3) against their
+    outward ``normals`` (n, 3) (module docstring)."""
+    points = np.asarray(points, dtype=float)
+    approach = -np.asarray(normals, dtype=float)
+    n = len(points)
+    cos_max = np.cos(np.deg2rad(config.cone_deg))
+    c = 1.0 - rng.random(n) * (1.0 - cos_max)  # uniform on the cap: cos uniform in [cos_max, 1]
+    phi = rng.uniform(0.0, 2 * np.pi, n)
+    e1, e2 = _basis(approach)
+    s = np.sqrt(1.0 - c**2)[:, None]
+    x_axis = s * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2) + c[:, None] * approach
+    u, w = _basis(x_axis)
+    roll = rng.uniform(0.0, 2 * np.pi, n)[:, None]
+    z_axis = np.cos(roll) * u + np.sin(roll) * w
+    R = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=2)
+    standoff = rng.uniform(*config.standoff_m, size=n)
+    centre = points - standoff[:, None] * x_axis
+    # the hand's grasp centre: on the line from the palm centre to the knuckles (twice the palm centre,
+    # see retarget.objective.palm_centre) and up to reach_beyond_knuckles_m beyond them
+    palm = palm_centre(sah)
+    knuckles = 2.0 * palm
+    along = rng.uniform(0.0, 1.0 + config.reach_beyond_knuckles_m / np.linalg.norm(knuckles - palm), n)
+    local = palm + along[:, None] * (knuckles - palm)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = centre - np.einsum("nij,nj->ni", R, local)
+    return T
+
+
+def _perturbed(q: np.ndarray, step_m: float, step_deg: float, thumb_rad: float, rng, n: int) -> np.ndarray:
+    """``n`` copies (n, 19) of the world-frame ``q`` with a Gaussian wrist step (``step_m`` per axis, a
+    rotation of ``step_deg`` about a random axis applied in the wrist frame) and thumb-opposition step."""
+    T = pose_from_q(q)
+    axis = rng.normal(size=(n, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    turn = Rotation.from_rotvec(axis * np.deg2rad(step_deg) * np.abs(rng.normal(size=(n, 1)))).as_matrix()
+    out = np.tile(q, (n, 1))
+    for i in range(n):
+        Ti = T.copy()
+        Ti[:3, :3] = T[:3, :3] @ turn[i]
+        Ti[:3, 3] += rng.normal(0.0, step_m, 3)
+        out[i, :6] = q_from_pose(Ti)
+    lo, hi = sah.JOINT_LIMITS[THUMB_BASE]
+    out[:, 6 + THUMB_BASE] = np.clip(out[:, 6 + THUMB_BASE] + rng.normal(0.0, thumb_rad, n), lo, hi)
+    return out
+
+
+class _Scorer:
+    """phi_o of world-frame configurations in one scene; 0 for a configuration in collision."""
+
+    def __init__(self, scene: Scene):
+        self.world = World(scene)
+        self.checker = CollisionChecker(self.world)
+        self.closer = HandCloser(self.world, AutoGraspConfig())
+
+    def __call__(self, q: np.ndarray) -> tuple[bool, float]:
+        if not self.checker.is_free(q):
+            return False, 0.0
+        return True, float(self.closer.close(q).quality)
+
+
+def grasp_ceiling(
+    scene: Scene, config: CeilingConfig = CeilingConfig(), rng: np.random.Generator | None = None
+) -> Ceiling:
+    """Sample, close, refine and shake grasps of ``scene``'s object (module docstring).
+
+    Args:
+        scene: the scene; its object at its nominal pose.
+        config: :class:`CeilingConfig`.
+        rng: the only source of randomness (default: seed 0).
+    """
+    import open3d as o3d
+
+    rng = rng or np.random.default_rng(0)
+    t0 = time.perf_counter()
+    mesh = o3d.io.read_triangle_mesh(str(assets.object_mesh(scene.object.name)))
+    points, normals = surface_samples(
+        np.asarray(mesh.vertices), np.asarray(mesh.triangles), config.samples, rng
+    )
+    T_world_wrist = scene.T_world_object @ wrist_poses(points, normals, config, rng)
+    joints = np.tile(sah.rest_joints(), (config.samples, 1))
+    lo, hi = sah.JOINT_LIMITS[THUMB_BASE]
+    joints[:, THUMB_BASE] = rng.uniform(lo, hi, config.samples)
+    score = _Scorer(scene)
+    try:
+        free, valid = 0, []
+        for T, J in zip(T_world_wrist, joints, strict=True):
+            q = np.concatenate([q_from_pose(T), J])
+            ok, e = score(q)
+            free += ok
+            if e >= config.epsilon:
+                valid.append((e, q))
+        valid.sort(key=lambda v: -v[0])
+        refined = [_refine(score, e, q, config, rng) for e, q in valid[: config.refine_best]]
+        refined.sort(key=lambda v: -v[0])
+        shaken = [_shake(score, q, config, rng) for _, q in refined]
+    finally:
+        score.world.close()
+    eps = np.array([e for e, _ in valid])
+    return Ceiling(
+        scene=scene.name,
+        object=scene.object.name,
+        tried=int(config.samples),
+        free=int(free),
+        valid=len(valid),
+        valid_quantiles=tuple(float(x) for x in np.quantile(eps, [0.5, 0.95, 1.0])) if len(eps) else (),
+        refined=tuple(float(e) for e, _ in refined),
+        refined_q=tuple(tuple(float(x) for x in q) for _, q in refined),
+        robust_mean=tuple(float(m) for m, _ in shaken),
+        robust_valid=tuple(float(v) for _, v in shaken),
+        epsilon=float(config.epsilon),
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _refine(score, e: float, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, np.ndarray]:
+    """Hill climbing on epsilon from ``q`` (quality ``e``): keep a proposal that is free and closes better."""
+    thumb = np.deg2rad(config.refine_step_deg)
+    for _ in range(config.refine_iterations):
+        x = _perturbed(q, config.refine_step_m, config.refine_step_deg, thumb, rng, 1)[0]
+        ok, ex = score(x)
+        if ok and ex > e:
+            e, q = ex, x
+    return e, q
+
+
+def _shake(score, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, float]:
+    """Mean epsilon and valid fraction of ``perturb_draws`` wrist perturbations of ``q`` (thumb held)."""
+    draws = _perturbed(q, config.perturb_m, config.perturb_deg, 0.0, rng, config.perturb_draws)
+    e = np.array([score(x)[1] for x in draws])
+    return float(e.mean()), float(np.mean(e >= config.epsilon))

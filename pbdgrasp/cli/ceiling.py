@@ -1,0 +1,49 @@
+"""``pbdgrasp ceiling --scene S [--samples N] [--seed S] [--json] [-o BEST.json]``: how well the SAH can hold
+the scene's object at all, before any strategy (:mod:`pbdgrasp.ceiling`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._args import float_in, int_in, output_file, seed
+from ._out import warn
+
+NAME = "ceiling"
+HELP = "random hand poses about a scene's object, closed and scored: how well the SAH can hold it at all"
+ORDER = 46
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--scene", required=True, help="scene name or YAML file")
+    p.add_argument(
+        "--samples", type=int_in(1, 10_000_000), default=100_000, help="poses sampled (default 100000)"
+    )
+    p.add_argument("--refine", type=int_in(0, 1000), default=20, help="best valid poses refined (default 20)")
+    p.add_argument(
+        "--epsilon", type=float_in(0.0, 1.0, lo_open=True), default=0.05, help="quality of a valid grasp"
+    )
+    p.add_argument("--seed", type=seed, default=0, help="seed of the poses (default 0)")
+    p.add_argument("--json", action="store_true", help="print the measurements as JSON")
+    p.add_argument(
+        "-o",
+        "--output",
+        type=output_file(".json"),
+        metavar="BEST.json",
+        help="write the most robust refined pose as a Q.json (see pbdgrasp quality --q)",
+    )
+
+
+def run(args) -> int:
+    from pbdgrasp.ceiling import CeilingConfig, grasp_ceiling
+    from planning.qfile import save_q
+    from planning.scene import load_scene
+
+    scene = load_scene(args.scene)
+    config = CeilingConfig(samples=args.samples, refine_best=args.refine, epsilon=args.epsilon)
+    result = grasp_ceiling(scene, config, np.random.default_rng(args.seed))
+    print(result.to_json() if args.json else result.summary())
+    if args.output and not result.refined_q:
+        warn(f"no valid grasp among {args.samples} poses; -o {args.output} wrote nothing")
+    elif args.output:
+        save_q(args.output, np.asarray(result.refined_q[int(np.argmax(result.robust_mean))]))
+    return 0

@@ -1,0 +1,121 @@
+"""The grasp-quality ceiling (pbdgrasp.ceiling): its surface and pose sampling against closed forms, its
+refinement and perturbation against a hand-placed grasp scored independently, and its command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from assets import sah
+from assets.errors import InputError
+from pbdgrasp import ceiling
+from pbdgrasp.bench_fixtures import HAM_GRASP_Q
+from pbdgrasp.cli import main
+from planning.autograsp import AutoGraspConfig, HandCloser
+from planning.scene import load_scene
+from planning.world import World
+from retarget.objective import palm_centre
+
+# a unit cube centred at the origin, outward (right-handed) triangles
+_CUBE_V = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+_CUBE_T = np.array(
+    [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+     [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+)  # fmt: skip
+
+
+def test_surface_samples_lie_on_a_cube_with_outward_normals_and_equal_faces():
+    rng = np.random.default_rng(0)
+    p, n = ceiling.surface_samples(_CUBE_V, _CUBE_T, 60_000, rng)
+    face = np.argmax(np.abs(p), axis=1) + 3 * (p[np.arange(len(p)), np.argmax(np.abs(p), axis=1)] > 0)
+    np.testing.assert_allclose(np.max(np.abs(p), axis=1), 0.5, atol=1e-12)  # on the surface
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.sum(n * p, axis=1), 0.5, atol=1e-12)  # outward: n . p = half the side
+    counts = np.bincount(face, minlength=6)
+    assert np.all(np.abs(counts - 10_000) < 5 * np.sqrt(10_000 * 5 / 6))  # area-uniform, 5 sigma
+
+
+def test_wrist_poses_face_the_point_at_the_standoff_along_the_hand_axis():
+    rng = np.random.default_rng(1)
+    p, n = ceiling.surface_samples(_CUBE_V, _CUBE_T, 500, rng)
+    cfg = ceiling.CeilingConfig(standoff_m=(0.02, 0.02), cone_deg=0.0, reach_beyond_knuckles_m=0.03)
+    T = ceiling.wrist_poses(p, n, cfg, rng)
+    R = T[:, :3, :3]
+    np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.tile(np.eye(3), (500, 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    np.testing.assert_allclose(R[:, :, 0], -n, atol=1e-12)  # the palm (+x) faces the surface
+    # the grasp centre p + s n, in the wrist frame, lies on the hand's axis from the palm centre on
+    centre = p + 0.02 * n
+    local = np.einsum("nji,nj->ni", R, centre - T[:, :3, 3])
+    palm = palm_centre(sah)
+    axis = palm / np.linalg.norm(palm)  # the knuckles are twice the palm centre: the axis goes through 0
+    s = (local - palm) @ axis
+    np.testing.assert_allclose(local - palm, s[:, None] * axis, atol=1e-12)
+    assert s.min() >= -1e-12 and s.max() <= np.linalg.norm(palm) + 0.03 + 1e-12
+    # with a cone, the palm's normal stays within it of -n
+    wide = ceiling.wrist_poses(p, n, ceiling.CeilingConfig(cone_deg=30.0), rng)
+    cos = np.sum(wide[:, :3, 0] * -n, axis=1)
+    assert cos.min() >= np.cos(np.deg2rad(30.0)) - 1e-12 and cos.max() > np.cos(np.deg2rad(2.0))
+
+
+@pytest.fixture(scope="module")
+def ham_scorer():
+    score = ceiling._Scorer(load_scene("ham"))
+    yield score
+    score.world.close()
+
+
+def test_refinement_never_loses_quality_and_its_pose_scores_so_in_a_second_world(ham_scorer):
+    """From the hand-placed ham grasp (epsilon ~0.17): the refined pose closes at least as well, and a
+    second, independent world and closer give it the same epsilon."""
+    q0 = np.array(HAM_GRASP_Q)
+    free, e0 = ham_scorer(q0)
+    assert free and e0 > 0.1
+    cfg = ceiling.CeilingConfig(refine_iterations=15)
+    e, q = ceiling._refine(ham_scorer, e0, q0, cfg, np.random.default_rng(2))
+    assert e >= e0
+    with World(load_scene("ham")) as world:
+        again = HandCloser(world, AutoGraspConfig()).close(q)
+    assert not again.in_collision and again.quality == pytest.approx(e, abs=1e-12)
+
+
+def test_a_perturbation_of_zero_gives_the_pose_itself_every_time(ham_scorer):
+    q0 = np.array(HAM_GRASP_Q)
+    e0 = ham_scorer(q0)[1]
+    still = ceiling.CeilingConfig(perturb_m=0.0, perturb_deg=0.0, perturb_draws=3)
+    mean, valid = ceiling._shake(ham_scorer, q0, still, np.random.default_rng(3))
+    assert mean == pytest.approx(e0, abs=1e-9) and valid == 1.0
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"samples": 0}, {"standoff_m": (0.05, 0.01)}, {"cone_deg": 120.0}, {"epsilon": 0.0}, {"perturb_m": -1}],
+)
+def test_bad_settings_are_refused(bad):
+    with pytest.raises(InputError, match="ceiling"):
+        ceiling.CeilingConfig(**bad)
+
+
+def test_cli_writes_the_most_robust_pose_that_quality_scores_alike(tmp_path, capsys):
+    """Chips, 1500 poses, seed 0 (4 valid): the written Q.json, closed again by ``pbdgrasp quality``,
+    has the refined epsilon the JSON reports for it."""
+    best = tmp_path / "best.json"
+    argv = ["ceiling", "--scene", "chips", "--samples", "1500", "--refine", "1", "--json", "-o", str(best)]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["tried"] == 1500 and 0 < out["valid"] <= out["free"] <= 1500
+    assert len(out["refined"]) == 1 and out["refined"][0] >= out["valid_quantiles"][2]
+    assert main(["quality", "--scene", "chips", "--q", str(best), "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["epsilon"] == pytest.approx(out["refined"][0], abs=1e-4)
+
+
+def test_cli_refuses_a_bad_sample_count_and_warns_when_nothing_is_valid(tmp_path, capsys):
+    assert main(["ceiling", "--scene", "ham", "--samples", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "--samples" in err[0]
+    best = tmp_path / "best.json"
+    assert main(["ceiling", "--scene", "ham", "--samples", "50", "-o", str(best)]) == 0
+    assert "wrote nothing" in capsys.readouterr().err and not best.exists()
