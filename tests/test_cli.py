@@ -15,6 +15,18 @@ def test_unknown_subcommand_is_one_error_line_and_status_2():
     assert len(lines) == 1 and lines[0].startswith("error: ")
 
 
+def test_a_reader_that_goes_away_ends_the_command_quietly():
+    """``pbdgrasp assets | head -0``: the pipe's reader is closed before anything is written; the command
+    stops with status 141 (128 + SIGPIPE) and writes no traceback."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pbdgrasp.cli", "assets"], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait() == 141, err
+    assert "Traceback" not in err and "BrokenPipeError" not in err
+
+
 # -- plan -> Q.json -> quality, and a database that remembers its settings --------------------------
 import json  # noqa: E402
 

@@ -6,7 +6,8 @@ found automatically, so adding a subcommand touches no shared file.
 
 Errors: bad input (:class:`assets.errors.InputError`) prints one line ``error: ...`` and exits 2; so do
 argument errors, which include every range check and output-path check of :mod:`pbdgrasp.cli._args`
-(made while parsing, before any work). ``--debug`` shows the traceback instead.
+(made while parsing, before any work). ``--debug`` shows the traceback instead. A reader that closes the
+output early (``pbdgrasp assets | head -1``) ends the command quietly with status 141, as SIGPIPE would.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 
@@ -66,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        status = int(args._run(args) or 0)
+        sys.stdout.flush()  # inside the try: a reader gone is caught here, not at the interpreter's exit
+        return status
     except InputError as exc:
         if args.debug:
             raise
@@ -75,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader went away (``| head``): stop quietly, as a Unix tool does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 141  # 128 + SIGPIPE
 
 
 if __name__ == "__main__":  # pragma: no cover
