@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 import assets
 from assets import sah
@@ -232,7 +233,10 @@ class _Scorer:
 
 
 def grasp_ceiling(
-    scene: Scene, config: CeilingConfig = CeilingConfig(), rng: np.random.Generator | None = None
+    scene: Scene,
+    config: CeilingConfig = CeilingConfig(),
+    rng: np.random.Generator | None = None,
+    progress: bool = False,
 ) -> Ceiling:
     """Sample, close, refine and shake grasps of ``scene``'s object (module docstring).
 
@@ -240,6 +244,7 @@ def grasp_ceiling(
         scene: the scene; its object at its nominal pose.
         config: :class:`CeilingConfig`.
         rng: the only source of randomness (default: seed 0).
+        progress: a tqdm bar over the poses on a terminal (stderr).
     """
     import open3d as o3d
 
@@ -256,12 +261,16 @@ def grasp_ceiling(
     score = _Scorer(scene)
     try:
         free, valid = 0, []
+        hide = None if progress else True  # None: tqdm shows the bar only on a terminal
+        bar = tqdm(desc="closing the hand", total=config.samples, unit="pose", disable=hide, leave=False)
         for T, J in zip(T_world_wrist, joints, strict=True):
+            bar.update()
             q = np.concatenate([q_from_pose(T), J])
             ok, e = score(q)
             free += ok
             if e >= config.epsilon:
                 valid.append((e, q))
+        bar.close()
         valid.sort(key=lambda v: -v[0])
         refined = [_refine(score, e, q, config, rng) for e, q in valid[: config.refine_best]]
         refined.sort(key=lambda v: -v[0])

@@ -24,6 +24,7 @@ def add_arguments(p) -> None:
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of the poses (default 0)")
     p.add_argument("--json", action="store_true", help="print the measurements as JSON")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument(
         "-o",
         "--output",
@@ -40,7 +41,7 @@ def run(args) -> int:
 
     scene = load_scene(args.scene)
     config = CeilingConfig(samples=args.samples, refine_best=args.refine, epsilon=args.epsilon)
-    result = grasp_ceiling(scene, config, np.random.default_rng(args.seed))
+    result = grasp_ceiling(scene, config, np.random.default_rng(args.seed), progress=not args.no_progress)
     print(result.to_json() if args.json else result.summary())
     if args.output and not result.refined_q:
         warn(f"no valid grasp among {args.samples} poses; -o {args.output} wrote nothing")
