@@ -38,14 +38,11 @@ from assets import sah
 from assets.errors import InputError
 from assets.se3 import pose_from_q, q_from_pose
 from planning.autograsp import AutoGraspConfig, HandCloser
-from planning.collision import CollisionChecker
 from planning.scene import Scene
 from planning.world import World
-from retarget.objective import palm_centre
+from retarget.objective import THUMB_BASE, palm_centre
 
 __all__ = ["CeilingConfig", "Ceiling", "grasp_ceiling", "surface_samples", "wrist_poses"]
-
-THUMB_BASE = sah.JOINT_NAMES.index("thumb_base")
 
 
 @dataclass(frozen=True)
@@ -120,6 +117,12 @@ class Ceiling:
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
 
+    @property
+    def most_robust(self) -> int | None:
+        """Index into ``refined`` of the pose with the best mean epsilon under the perturbation (the first
+        on ties), or None where nothing was refined."""
+        return int(np.argmax(self.robust_mean)) if self.robust_mean else None
+
     def summary(self) -> str:
         """A few lines for the terminal."""
         share = self.valid / self.free if self.free else 0.0
@@ -131,7 +134,7 @@ class Ceiling:
             med, p95, top = self.valid_quantiles
             lines.append(f"valid samples: median {med:.3f}, p95 {p95:.3f}, max {top:.3f}")
         if self.refined:
-            best = np.argsort(self.robust_mean)[::-1][0]
+            best = self.most_robust
             lines.append(
                 "refined: "
                 + ", ".join(f"{e:.3f}" for e in self.refined[:5])
@@ -219,17 +222,16 @@ def _perturbed(q: np.ndarray, step_m: float, step_deg: float, thumb_rad: float, 
 
 
 class _Scorer:
-    """phi_o of world-frame configurations in one scene; 0 for a configuration in collision."""
+    """phi_o of world-frame configurations in one scene: ``(collision-free, epsilon)``, epsilon 0 for a
+    configuration in collision (:meth:`HandCloser.close` checks that first)."""
 
     def __init__(self, scene: Scene):
         self.world = World(scene)
-        self.checker = CollisionChecker(self.world)
         self.closer = HandCloser(self.world, AutoGraspConfig())
 
     def __call__(self, q: np.ndarray) -> tuple[bool, float]:
-        if not self.checker.is_free(q):
-            return False, 0.0
-        return True, float(self.closer.close(q).quality)
+        grasp = self.closer.close(q)
+        return not grasp.in_collision, float(grasp.quality)
 
 
 def grasp_ceiling(

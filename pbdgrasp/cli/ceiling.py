@@ -43,8 +43,8 @@ def run(args) -> int:
     config = CeilingConfig(samples=args.samples, refine_best=args.refine, epsilon=args.epsilon)
     result = grasp_ceiling(scene, config, np.random.default_rng(args.seed), progress=not args.no_progress)
     print(result.to_json() if args.json else result.summary())
-    if args.output and not result.refined_q:
+    if args.output and result.most_robust is None:
         warn(f"no valid grasp among {args.samples} poses; -o {args.output} wrote nothing")
     elif args.output:
-        save_q(args.output, np.asarray(result.refined_q[int(np.argmax(result.robust_mean))]))
+        save_q(args.output, np.asarray(result.refined_q[result.most_robust]))
     return 0
