@@ -11,7 +11,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     power_wrist_position_std_mm: 15.0     # +10 mm
     power_wrist_rotation_std_deg: 2.0
     joint_floor_std_deg: 1.0              # added to every joint's variance: keeps f_1t positive definite
-    fingertip_cov_map: finger_joints      # the fingertip std through the finger joints (or: configuration)
+    fingertip_cov_map: configuration      # the fingertip std through the whole Jacobian (or: finger_joints)
     # smoothness S_t between consecutive steps (per step of the trajectory, 20 Hz in the demonstrations)
     smooth_position_std_mm: 10.0          # the paper's S_t = 10^2 I mm^2
     smooth_rotation_std_deg: 5.0          # our choice: ~100 deg/s at 20 Hz
@@ -46,13 +46,12 @@ Every field has the paper's default (or a documented choice where the paper is s
 
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
 covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian
-(:func:`assets.sah.config_cov_from_fingertip_cov`): by default of its joint columns alone
-(``fingertip_cov_map: finger_joints``: the fingers' joints carry the fingertip std, the wrist its own stds,
-independent), or of the whole Jacobian (``configuration``: the minimum-norm configuration change, wrist and
-joints coupled; the model files written before 2026-12-04 were made so). The wrist stds are added on the
-``[omega, v]`` block, and the joint floor on the joint block. With ``sigma_m_std_config`` set, Sigma_m
-is ``diag(sigma_m_std_config^2)`` instead (the floor is still added; set ``joint_floor_std_deg: 0`` to
-state the covariance exactly).
+(:func:`assets.sah.config_cov_from_fingertip_cov`): by default of the whole Jacobian
+(``fingertip_cov_map: configuration``: the minimum-norm configuration change, wrist and joints coupled),
+or of its joint columns alone (``finger_joints``: the fingers' joints carry the fingertip std, the wrist
+its own stds, independent). The wrist stds are added on the ``[omega, v]`` block, and the joint floor
+on the joint block. With ``sigma_m_std_config`` set, Sigma_m is ``diag(sigma_m_std_config^2)`` instead
+(the floor is still added; set ``joint_floor_std_deg: 0`` to state the covariance exactly).
 """
 
 from __future__ import annotations

@@ -262,3 +262,19 @@ def test_a_singular_factor_covariance_is_a_clear_error(make_traj):
     with pytest.raises(InputError, match="cov_object"):
         solve(traj, params, cov_object=-np.eye(6))
     assert math.isfinite(solve(traj, params).solve_time_s)
+
+
+def test_the_documented_parameter_file_states_every_default():
+    """The module docstring's YAML is a parameter file: it names every field, with its default."""
+    import dataclasses
+
+    import yaml
+
+    import inference.params
+
+    doc = inference.params.__doc__
+    block = doc.split("::\n\n", 1)[1].split("\n\n", 1)[0]
+    documented = yaml.safe_load(block)
+    defaults = {f.name: getattr(VariationParams(), f.name) for f in dataclasses.fields(VariationParams)}
+    assert documented == defaults
+    assert VariationParams.from_dict(documented) == VariationParams()
