@@ -21,6 +21,12 @@ Gaussian wrist step (``refine_step_m``, ``refine_step_deg``) and thumb-oppositio
 when it is collision-free and closes better. Robustness: ``perturb_draws`` draws of a wrist perturbation
 (``perturb_m`` per axis, ``perturb_deg`` about a random axis) about each refined pose; a colliding draw
 scores 0.
+
+Workers: the sampled poses are drawn first, then closed in chunks of ``chunk`` poses, in this process or
+(``workers`` > 1 and more than one chunk) on ``workers`` single-threaded Dask worker processes
+(:func:`pbdgrasp.workers.dask_client`), each with its own pybullet world; closing is deterministic, so the
+result is the same for any number of workers. Refinement and shaking (a few thousand closings) stay in the
+calling process.
 """
 
 from __future__ import annotations
@@ -65,6 +71,8 @@ class CeilingConfig:
     perturb_m: float = 0.001
     perturb_deg: float = 1.0
     perturb_draws: int = 50
+    workers: int = 1
+    chunk: int = 5_000
 
     def __post_init__(self):
         lo, hi = self.standoff_m
@@ -76,6 +84,8 @@ class CeilingConfig:
             raise InputError(
                 f"ceiling: standoff_m must satisfy 0 <= lo <= hi <= 0.2 m, found {self.standoff_m}"
             )
+        if self.workers < 1 or self.chunk < 1:
+            raise InputError(f"ceiling: need workers >= 1 and chunk >= 1, found {self.workers}, {self.chunk}")
         if not (0.0 <= self.cone_deg <= 90.0 and 0.0 < self.epsilon < 1.0):
             raise InputError("ceiling: need cone_deg in [0, 90] and epsilon in (0, 1)")
         steps = (self.refine_step_m, self.refine_step_deg, self.perturb_m, self.perturb_deg)
@@ -260,19 +270,10 @@ def grasp_ceiling(
     joints = np.tile(sah.rest_joints(), (config.samples, 1))
     lo, hi = sah.JOINT_LIMITS[THUMB_BASE]
     joints[:, THUMB_BASE] = rng.uniform(lo, hi, config.samples)
+    q_sampled = np.concatenate([q_from_pose(T_world_wrist), joints], axis=1)
+    free, valid = _close_all(scene, q_sampled, config, progress)
     score = _Scorer(scene)
     try:
-        free, valid = 0, []
-        hide = None if progress else True  # None: tqdm shows the bar only on a terminal
-        bar = tqdm(desc="closing the hand", total=config.samples, unit="pose", disable=hide, leave=False)
-        for T, J in zip(T_world_wrist, joints, strict=True):
-            bar.update()
-            q = np.concatenate([q_from_pose(T), J])
-            ok, e = score(q)
-            free += ok
-            if e >= config.epsilon:
-                valid.append((e, q))
-        bar.close()
         valid.sort(key=lambda v: -v[0])
         refined = [_refine(score, e, q, config, rng) for e, q in valid[: config.refine_best]]
         refined.sort(key=lambda v: -v[0])
@@ -294,6 +295,54 @@ def grasp_ceiling(
         epsilon=float(config.epsilon),
         seconds=time.perf_counter() - t0,
     )
+
+
+def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, list[tuple[float, int]]]:
+    """Close the hand at each of the configurations ``q`` (n, 19) in a world of its own: the number of
+    collision-free ones and ``(epsilon, index)`` of the valid ones, in the order of ``q``."""
+    score = _Scorer(scene)
+    try:
+        free, valid = 0, []
+        for i, x in enumerate(q):
+            ok, e = score(x)
+            free += ok
+            if e >= epsilon:
+                valid.append((e, i))
+        return free, valid
+    finally:
+        score.world.close()
+
+
+def _close_all(scene: Scene, q: np.ndarray, config: CeilingConfig, progress: bool):
+    """Close the hand at every sampled configuration ``q`` (n, 19), in chunks on ``config.workers``
+    processes: the number of collision-free ones and ``[(epsilon, q)]`` of the valid ones, in sampling
+    order (module docstring)."""
+    starts = range(0, len(q), config.chunk)
+    hide = None if progress else True  # None: tqdm shows the bar only on a terminal
+    bar = tqdm(desc="closing the hand", total=len(q), unit="pose", disable=hide, leave=False)
+    results = {}
+    if config.workers == 1 or len(starts) == 1:
+        for start in starts:
+            results[start] = _score_chunk(scene, q[start : start + config.chunk], config.epsilon)
+            bar.update(len(q[start : start + config.chunk]))
+    else:
+        from distributed import as_completed
+
+        from .workers import dask_client
+
+        with dask_client(config.workers) as client:
+            futures = {
+                client.submit(_score_chunk, scene, q[start : start + config.chunk], config.epsilon): start
+                for start in starts
+            }
+            for fut in as_completed(futures):
+                start = futures[fut]
+                results[start] = fut.result()
+                bar.update(len(q[start : start + config.chunk]))
+    bar.close()
+    free = sum(results[start][0] for start in starts)
+    valid = [(e, q[start + i]) for start in starts for e, i in results[start][1]]
+    return free, valid
 
 
 def _refine(score, e: float, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, np.ndarray]:

@@ -346,7 +346,7 @@ def run_table1(
             elif tasks:
                 from distributed import as_completed
 
-                with dask_client(config) as client:
+                with dask_client(config.workers, config.scheduler) as client:
                     if config.scheduler:
                         workers = len(client.scheduler_info().get("workers", {}))
                     futures = [client.submit(run_trial, t, pure=False, key=f"trial-{t.row}-{t.planner}-"

@@ -117,10 +117,9 @@ def _sigint_ignored():
 
 
 @contextlib.contextmanager
-def dask_client(config):
-    """A Dask client for ``config`` (a :class:`~pbdgrasp.table1.Table1Config`): connected to
-    ``config.scheduler``, or to an embedded ``LocalCluster`` of ``config.workers`` single-threaded worker
-    processes (which ignore Ctrl-C; the coordinating process stops them).
+def dask_client(workers: int, scheduler: str | None = None):
+    """A Dask client connected to ``scheduler``, or to an embedded ``LocalCluster`` of ``workers``
+    single-threaded worker processes (which ignore Ctrl-C; the coordinating process stops them).
 
     Raises:
         InputError: the scheduler cannot be reached or has no worker (:data:`CONNECT_TIMEOUT_S`).
@@ -128,13 +127,13 @@ def dask_client(config):
     from distributed import Client, LocalCluster
 
     quiet_dask()
-    if config.scheduler:
-        with _connect(config.scheduler) as client:
+    if scheduler:
+        with _connect(scheduler) as client:
             yield client
         return
     with _sigint_ignored():
         cluster = LocalCluster(
-            n_workers=config.workers,
+            n_workers=workers,
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,

@@ -1,7 +1,9 @@
-"""``pbdgrasp ceiling --scene S [--samples N] [--seed S] [--json] [-o BEST.json]``: how well the SAH can hold
-the scene's object at all, before any strategy (:mod:`pbdgrasp.ceiling`)."""
+"""``pbdgrasp ceiling --scene S [--samples N] [--seed S] [--workers W] [--json] [-o BEST.json]``: how well
+the SAH can hold the scene's object at all, before any strategy (:mod:`pbdgrasp.ceiling`)."""
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -23,6 +25,12 @@ def add_arguments(p) -> None:
         "--epsilon", type=float_in(0.0, 1.0, lo_open=True), default=0.05, help="quality of a valid grasp"
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of the poses (default 0)")
+    p.add_argument(
+        "--workers",
+        type=int_in(1, 256),
+        default=None,
+        help="worker processes closing the hand (Dask; the result does not depend on it; default: the cores)",
+    )
     p.add_argument("--json", action="store_true", help="print the measurements as JSON")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument(
@@ -40,7 +48,12 @@ def run(args) -> int:
     from planning.scene import load_scene
 
     scene = load_scene(args.scene)
-    config = CeilingConfig(samples=args.samples, refine_best=args.refine, epsilon=args.epsilon)
+    config = CeilingConfig(
+        samples=args.samples,
+        refine_best=args.refine,
+        epsilon=args.epsilon,
+        workers=(os.cpu_count() or 1) if args.workers is None else args.workers,
+    )
     result = grasp_ceiling(scene, config, np.random.default_rng(args.seed), progress=not args.no_progress)
     print(result.to_json() if args.json else result.summary())
     if args.output and result.most_robust is None:
