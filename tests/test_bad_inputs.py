@@ -32,6 +32,25 @@ MANIFEST = yaml.safe_load((BAD / "manifest.yaml").read_text())
 GOOD_TRAJ = BAD / "good" / "small.traj.npz"
 
 
+def test_the_shipped_corpus_is_what_its_generator_makes(tmp_path, monkeypatch):
+    """``make_corpus.py`` run afresh writes the shipped files byte for byte, and no others: the corpus
+    cannot drift from its generator unnoticed."""
+    import importlib
+
+    monkeypatch.syspath_prepend(str(BAD))
+    importlib.import_module("make_corpus").main(tmp_path)
+
+    def files(root: Path) -> set[Path]:
+        return {
+            p.relative_to(root)
+            for p in root.rglob("*")
+            if p.is_file() and p.suffix != ".py" and "__pycache__" not in p.parts
+        }
+
+    assert files(tmp_path) == files(BAD)
+    assert [str(f) for f in sorted(files(BAD)) if (tmp_path / f).read_bytes() != (BAD / f).read_bytes()] == []
+
+
 def _argv(kind: str, path: Path, tmp: Path) -> list[str]:
     """The CLI command that reads a file of this kind (the first thing it does)."""
     return {
