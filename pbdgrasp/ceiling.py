@@ -22,15 +22,16 @@ when it is collision-free and closes better. Robustness: ``perturb_draws`` draws
 (``perturb_m`` per axis, ``perturb_deg`` about a random axis) about each refined pose; a colliding draw
 scores 0.
 
-Workers: the sampled poses are drawn first, then closed in chunks of ``chunk`` poses, in this process or
-(``workers`` > 1 and more than one chunk) on ``workers`` single-threaded Dask worker processes
-(:func:`pbdgrasp.workers.dask_client`), each with its own pybullet world; closing is deterministic, so the
-result is the same for any number of workers. Refinement and shaking (a few thousand closings) stay in the
-calling process.
+Workers: the sampled poses are drawn first, then closed in chunks of ``chunk`` poses; each refinement
+and its shaking runs with its own generator, spawned from ``rng`` (``Generator.spawn``). With ``workers``
+> 1 and more than one chunk, both run on ``workers`` single-threaded Dask worker processes
+(:func:`pbdgrasp.workers.dask_client`), each task in a pybullet world of its own; otherwise in this
+process. Closing is deterministic, so the result is the same for any number of workers.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -44,6 +45,7 @@ from assets import sah
 from assets.errors import InputError
 from assets.se3 import pose_from_q, q_from_pose
 from planning.autograsp import AutoGraspConfig, HandCloser
+from planning.grasp_quality import tangent_basis
 from planning.scene import Scene
 from planning.world import World
 from retarget.objective import THUMB_BASE, palm_centre
@@ -65,7 +67,7 @@ class CeilingConfig:
     cone_deg: float = 30.0
     epsilon: float = 0.05
     refine_best: int = 20
-    refine_iterations: int = 200
+    refine_iterations: int = 1_000
     refine_step_m: float = 0.002
     refine_step_deg: float = 2.0
     perturb_m: float = 0.001
@@ -175,14 +177,6 @@ def surface_samples(vertices: np.ndarray, triangles: np.ndarray, n: int, rng: np
     return points, cross[k] / np.linalg.norm(cross[k], axis=1, keepdims=True)
 
 
-def _basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (n, 3) each, completing the unit ``axis`` (n, 3) to a right-handed basis."""
-    helper = np.where(np.abs(axis[:, [2]]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(axis, u)
-
-
 def wrist_poses(points, normals, config: CeilingConfig, rng: np.random.Generator) -> np.ndarray:
     """Object-frame wrist poses (n, 4, 4) whose palm faces the surface ``points`` (n, 3) against their
     outward ``normals`` (n, 3) (module docstring)."""
@@ -192,10 +186,10 @@ def wrist_poses(points, normals, config: CeilingConfig, rng: np.random.Generator
     cos_max = np.cos(np.deg2rad(config.cone_deg))
     c = 1.0 - rng.random(n) * (1.0 - cos_max)  # uniform on the cap: cos uniform in [cos_max, 1]
     phi = rng.uniform(0.0, 2 * np.pi, n)
-    e1, e2 = _basis(approach)
+    e1, e2 = tangent_basis(approach)
     s = np.sqrt(1.0 - c**2)[:, None]
     x_axis = s * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2) + c[:, None] * approach
-    u, w = _basis(x_axis)
+    u, w = tangent_basis(x_axis)
     roll = rng.uniform(0.0, 2 * np.pi, n)[:, None]
     z_axis = np.cos(roll) * u + np.sin(roll) * w
     R = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=2)
@@ -271,15 +265,31 @@ def grasp_ceiling(
     lo, hi = sah.JOINT_LIMITS[THUMB_BASE]
     joints[:, THUMB_BASE] = rng.uniform(lo, hi, config.samples)
     q_sampled = np.concatenate([q_from_pose(T_world_wrist), joints], axis=1)
-    free, valid = _close_all(scene, q_sampled, config, progress)
-    score = _Scorer(scene)
-    try:
+    starts = range(0, config.samples, config.chunk)
+    bars = dict(disable=None if progress else True, leave=False)  # None: the bars only on a terminal
+    with _client(config.workers if len(starts) > 1 else 1) as client:
+        with tqdm(desc="closing the hand", total=config.samples, unit="pose", **bars) as bar:
+            chunks = _map(
+                client,
+                _score_chunk,
+                [(scene, q_sampled[start : start + config.chunk], config.epsilon) for start in starts],
+                lambda result: bar.update(result[0] + result[1]),
+            )
+        free = sum(c[0] for c in chunks)
+        valid = [(e, q_sampled[start + i]) for start, c in zip(starts, chunks, strict=True) for e, i in c[2]]
         valid.sort(key=lambda v: -v[0])
-        refined = [_refine(score, e, q, config, rng) for e, q in valid[: config.refine_best]]
-        refined.sort(key=lambda v: -v[0])
-        shaken = [_shake(score, q, config, rng) for _, q in refined]
-    finally:
-        score.world.close()
+        best = valid[: config.refine_best]
+        chain_rngs = rng.spawn(len(best))
+        with tqdm(desc="refining", total=len(best), unit="grasp", **bars) as bar:
+            chains = _map(
+                client,
+                _refine_and_shake,
+                [(scene, e, q, config, r) for (e, q), r in zip(best, chain_rngs, strict=True)],
+                lambda result: bar.update(),
+            )
+    chains.sort(key=lambda c: -c[0])
+    refined = [(e, q) for e, q, _, _ in chains]
+    shaken = [(m, v) for _, _, m, v in chains]
     eps = np.array([e for e, _ in valid])
     return Ceiling(
         scene=scene.name,
@@ -297,9 +307,10 @@ def grasp_ceiling(
     )
 
 
-def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, list[tuple[float, int]]]:
+def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, int, list[tuple[float, int]]]:
     """Close the hand at each of the configurations ``q`` (n, 19) in a world of its own: the number of
-    collision-free ones and ``(epsilon, index)`` of the valid ones, in the order of ``q``."""
+    collision-free ones, of colliding ones, and ``(epsilon, index)`` of the valid ones, in the order of
+    ``q``."""
     score = _Scorer(scene)
     try:
         free, valid = 0, []
@@ -308,41 +319,50 @@ def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, list
             free += ok
             if e >= epsilon:
                 valid.append((e, i))
-        return free, valid
+        return free, len(q) - free, valid
     finally:
         score.world.close()
 
 
-def _close_all(scene: Scene, q: np.ndarray, config: CeilingConfig, progress: bool):
-    """Close the hand at every sampled configuration ``q`` (n, 19), in chunks on ``config.workers``
-    processes: the number of collision-free ones and ``[(epsilon, q)]`` of the valid ones, in sampling
-    order (module docstring)."""
-    starts = range(0, len(q), config.chunk)
-    hide = None if progress else True  # None: tqdm shows the bar only on a terminal
-    bar = tqdm(desc="closing the hand", total=len(q), unit="pose", disable=hide, leave=False)
-    results = {}
-    if config.workers == 1 or len(starts) == 1:
-        for start in starts:
-            results[start] = _score_chunk(scene, q[start : start + config.chunk], config.epsilon)
-            bar.update(len(q[start : start + config.chunk]))
-    else:
-        from distributed import as_completed
+def _refine_and_shake(scene: Scene, e: float, q: np.ndarray, config: CeilingConfig, rng):
+    """One valid sample refined (:func:`_refine`) and its result shaken (:func:`_shake`) in a world of its
+    own, with its own generator: ``(epsilon, q, mean epsilon shaken, valid fraction shaken)``."""
+    score = _Scorer(scene)
+    try:
+        e, q = _refine(score, e, q, config, rng)
+        return (e, q, *_shake(score, q, config, rng))
+    finally:
+        score.world.close()
 
-        from .workers import dask_client
 
-        with dask_client(config.workers) as client:
-            futures = {
-                client.submit(_score_chunk, scene, q[start : start + config.chunk], config.epsilon): start
-                for start in starts
-            }
-            for fut in as_completed(futures):
-                start = futures[fut]
-                results[start] = fut.result()
-                bar.update(len(q[start : start + config.chunk]))
-    bar.close()
-    free = sum(results[start][0] for start in starts)
-    valid = [(e, q[start + i]) for start in starts for e, i in results[start][1]]
-    return free, valid
+@contextlib.contextmanager
+def _client(workers: int):
+    """A Dask client of ``workers`` local processes, or None (work in this process) for one worker."""
+    if workers == 1:
+        yield None
+        return
+    from .workers import dask_client
+
+    with dask_client(workers) as client:
+        yield client
+
+
+def _map(client, fn, tasks: list[tuple], done) -> list:
+    """``[fn(*task) for task in tasks]``, in this process (``client`` None) or on Dask's workers; ``done``
+    is called with each result as it arrives."""
+    results = [None] * len(tasks)
+    if client is None:
+        for k, task in enumerate(tasks):
+            results[k] = fn(*task)
+            done(results[k])
+        return results
+    from distributed import as_completed
+
+    futures = {client.submit(fn, *task, pure=False): k for k, task in enumerate(tasks)}
+    for future in as_completed(futures):
+        results[futures[future]] = future.result()
+        done(results[futures[future]])
+    return results
 
 
 def _refine(score, e: float, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, np.ndarray]:

@@ -121,7 +121,7 @@ def test_bad_settings_are_refused(bad):
 
 
 def test_cli_writes_the_most_robust_pose_that_quality_scores_alike(tmp_path, capsys):
-    """Chips, 1500 poses, seed 0 (4 valid): the written Q.json, closed again by ``pbdgrasp quality``,
+    """Chips, 1500 poses, seed 0 (a few valid): the written Q.json, closed again by ``pbdgrasp quality``,
     has the refined epsilon the JSON reports for it."""
     best = tmp_path / "best.json"
     argv = ["ceiling", "--scene", "chips", "--samples", "1500", "--refine", "1", "--json", "-o", str(best)]
