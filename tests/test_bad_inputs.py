@@ -48,7 +48,39 @@ def test_the_shipped_corpus_is_what_its_generator_makes(tmp_path, monkeypatch):
         }
 
     assert files(tmp_path) == files(BAD)
-    assert [str(f) for f in sorted(files(BAD)) if (tmp_path / f).read_bytes() != (BAD / f).read_bytes()] == []
+    differ = [str(f) for f in sorted(files(BAD)) if not _same_file(tmp_path / f, BAD / f)]
+    assert differ == []
+
+
+def _arrays(path: Path) -> dict | None:
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except Exception:
+        return None
+
+
+def _same_file(made: Path, shipped: Path) -> bool:
+    """Byte for byte, except that an archive's float arrays may differ in their last bits (another
+    numpy or GTSAM build solves the models a little differently) and an unreadable archive (a truncated
+    one) need only stay unreadable."""
+    if made.read_bytes() == shipped.read_bytes():
+        return True
+    if not made.name.endswith(".npz"):
+        return False
+    a, b = _arrays(made), _arrays(shipped)
+    if a is None or b is None:
+        return a is None and b is None
+    if a.keys() != b.keys():
+        return False
+    for k in a:
+        x, y = a[k], b[k]
+        if x.dtype.kind == "f" and y.dtype.kind == "f":
+            if x.shape != y.shape or not np.allclose(x, y, rtol=1e-9, atol=1e-12, equal_nan=True):
+                return False
+        elif x.dtype != y.dtype or x.shape != y.shape or not np.array_equal(x, y):
+            return False
+    return True
 
 
 def _argv(kind: str, path: Path, tmp: Path) -> list[str]:
