@@ -25,13 +25,12 @@ scores 0.
 Workers: the sampled poses are drawn first, then closed in chunks of ``chunk`` poses; each refinement
 and its shaking runs with its own generator, spawned from ``rng`` (``Generator.spawn``). With ``workers``
 > 1 and more than one chunk, both run on ``workers`` single-threaded Dask worker processes
-(:func:`pbdgrasp.workers.dask_client`), each task in a pybullet world of its own; otherwise in this
+(:func:`pbdgrasp.workers.task_client`), each task in a pybullet world of its own; otherwise in this
 process. Closing is deterministic, so the result is the same for any number of workers.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -49,6 +48,8 @@ from planning.grasp_quality import tangent_basis
 from planning.scene import Scene
 from planning.world import World
 from retarget.objective import THUMB_BASE, palm_centre
+
+from .workers import map_tasks, task_client
 
 __all__ = ["CeilingConfig", "Ceiling", "grasp_ceiling", "surface_samples", "wrist_poses"]
 
@@ -267,9 +268,9 @@ def grasp_ceiling(
     q_sampled = np.concatenate([q_from_pose(T_world_wrist), joints], axis=1)
     starts = range(0, config.samples, config.chunk)
     bars = dict(disable=None if progress else True, leave=False)  # None: the bars only on a terminal
-    with _client(config.workers if len(starts) > 1 else 1) as client:
+    with task_client(config.workers if len(starts) > 1 else 1) as client:
         with tqdm(desc="closing the hand", total=config.samples, unit="pose", **bars) as bar:
-            chunks = _map(
+            chunks = map_tasks(
                 client,
                 _score_chunk,
                 [(scene, q_sampled[start : start + config.chunk], config.epsilon) for start in starts],
@@ -281,7 +282,7 @@ def grasp_ceiling(
         best = valid[: config.refine_best]
         chain_rngs = rng.spawn(len(best))
         with tqdm(desc="refining", total=len(best), unit="grasp", **bars) as bar:
-            chains = _map(
+            chains = map_tasks(
                 client,
                 _refine_and_shake,
                 [(scene, e, q, config, r) for (e, q), r in zip(best, chain_rngs, strict=True)],
@@ -333,36 +334,6 @@ def _refine_and_shake(scene: Scene, e: float, q: np.ndarray, config: CeilingConf
         return (e, q, *_shake(score, q, config, rng))
     finally:
         score.world.close()
-
-
-@contextlib.contextmanager
-def _client(workers: int):
-    """A Dask client of ``workers`` local processes, or None (work in this process) for one worker."""
-    if workers == 1:
-        yield None
-        return
-    from .workers import dask_client
-
-    with dask_client(workers) as client:
-        yield client
-
-
-def _map(client, fn, tasks: list[tuple], done) -> list:
-    """``[fn(*task) for task in tasks]``, in this process (``client`` None) or on Dask's workers; ``done``
-    is called with each result as it arrives."""
-    results = [None] * len(tasks)
-    if client is None:
-        for k, task in enumerate(tasks):
-            results[k] = fn(*task)
-            done(results[k])
-        return results
-    from distributed import as_completed
-
-    futures = {client.submit(fn, *task, pure=False): k for k, task in enumerate(tasks)}
-    for future in as_completed(futures):
-        results[futures[future]] = future.result()
-        done(results[futures[future]])
-    return results
 
 
 def _refine(score, e: float, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, np.ndarray]:

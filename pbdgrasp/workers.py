@@ -1,5 +1,5 @@
-"""The Table I run's workers and progress: a Dask client (embedded cluster or a scheduler) and a tqdm bar
-with per-row success counts."""
+"""Dask workers: a client (embedded cluster or a scheduler) for the Table I run and its tqdm bar with per-row
+success counts, and an ordered map of tasks over a local cluster or this process (the ceiling's)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,15 @@ from assets.errors import InputError
 
 from .results_db import TrialRecord
 
-__all__ = ["TrialProgress", "dask_client", "check_scheduler", "quiet_dask", "CONNECT_TIMEOUT_S"]
+__all__ = [
+    "TrialProgress",
+    "dask_client",
+    "check_scheduler",
+    "quiet_dask",
+    "task_client",
+    "map_tasks",
+    "CONNECT_TIMEOUT_S",
+]
 
 CONNECT_TIMEOUT_S = 10.0
 """How long to wait for a Dask scheduler to answer, and then for it to have a worker [s]."""
@@ -141,3 +149,35 @@ def dask_client(workers: int, scheduler: str | None = None):
         )
     with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def task_client(workers: int):
+    """For :func:`map_tasks`: a client of an embedded cluster of ``workers`` processes
+    (:func:`dask_client`), or None for one worker (the tasks then run in this process)."""
+    if workers == 1:
+        yield None
+        return
+    with dask_client(workers) as client:
+        yield client
+
+
+def map_tasks(client, fn, tasks: list[tuple], done=None) -> list:
+    """``[fn(*task) for task in tasks]``, in this process (``client`` None) or on the client's workers, in
+    the order of ``tasks`` whatever the order they finish in; ``done(result)``, if given, is called as
+    each arrives (a progress bar)."""
+    results = [None] * len(tasks)
+    if client is None:
+        for k, task in enumerate(tasks):
+            results[k] = fn(*task)
+            if done:
+                done(results[k])
+        return results
+    from distributed import as_completed
+
+    futures = {client.submit(fn, *task, pure=False): k for k, task in enumerate(tasks)}
+    for future in as_completed(futures):
+        results[futures[future]] = future.result()
+        if done:
+            done(results[futures[future]])
+    return results
