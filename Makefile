@@ -41,10 +41,10 @@ syslibs:
 	$(call apt_need,libusb-1.0-0,needed by Open3D,/sbin/ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0')
 	$(call apt_need,chromium,the viewer's screenshots and tests,command -v chromium >/dev/null)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml .ci/constraints.txt
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q -c .ci/constraints.txt -e '.[test]'
 	@touch $(STAMP)
 
 test: setup
