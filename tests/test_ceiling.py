@@ -124,7 +124,8 @@ def test_cli_writes_the_most_robust_pose_that_quality_scores_alike(tmp_path, cap
     """Chips, 1500 poses, seed 0 (a few valid): the written Q.json, closed again by ``pbdgrasp quality``,
     has the refined epsilon the JSON reports for it."""
     best = tmp_path / "best.json"
-    argv = ["ceiling", "--scene", "chips", "--samples", "1500", "--refine", "1", "--json", "-o", str(best)]
+    argv = ["ceiling", "--scene", "chips", "--samples", "1500", "--refine", "1", "--refine-iterations", "100"]
+    argv += ["--json", "-o", str(best)]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["tried"] == 1500 and 0 < out["valid"] <= out["free"] <= 1500

@@ -1,5 +1,6 @@
-"""``pbdgrasp ceiling --scene S [--samples N] [--seed S] [--workers W] [--json] [-o BEST.json]``: how well
-the SAH can hold the scene's object at all, before any strategy (:mod:`pbdgrasp.ceiling`)."""
+"""``pbdgrasp ceiling --scene S [--samples N] [--refine K] [--refine-iterations I] [--seed S] [--workers W]
+[--json] [-o BEST.json]``: how well the SAH can hold the scene's object at all, before any strategy
+(:mod:`pbdgrasp.ceiling`)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,12 @@ def add_arguments(p) -> None:
         "--samples", type=int_in(1, 10_000_000), default=100_000, help="poses sampled (default 100000)"
     )
     p.add_argument("--refine", type=int_in(0, 1000), default=20, help="best valid poses refined (default 20)")
+    p.add_argument(
+        "--refine-iterations",
+        type=int_in(0, 1_000_000),
+        default=1_000,
+        help="hill-climbing proposals per refined pose (default 1000; the refined best grows with it)",
+    )
     p.add_argument(
         "--epsilon", type=float_in(0.0, 1.0, lo_open=True), default=0.05, help="quality of a valid grasp"
     )
@@ -51,6 +58,7 @@ def run(args) -> int:
     config = CeilingConfig(
         samples=args.samples,
         refine_best=args.refine,
+        refine_iterations=args.refine_iterations,
         epsilon=args.epsilon,
         workers=(os.cpu_count() or 1) if args.workers is None else args.workers,
     )
