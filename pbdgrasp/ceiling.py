@@ -274,10 +274,10 @@ def grasp_ceiling(
                 client,
                 _score_chunk,
                 [(scene, q_sampled[start : start + config.chunk], config.epsilon) for start in starts],
-                lambda result: bar.update(result[0] + result[1]),
+                lambda task, result: bar.update(len(task[1])),
             )
         free = sum(c[0] for c in chunks)
-        valid = [(e, q_sampled[start + i]) for start, c in zip(starts, chunks, strict=True) for e, i in c[2]]
+        valid = [(e, q_sampled[start + i]) for start, c in zip(starts, chunks, strict=True) for e, i in c[1]]
         valid.sort(key=lambda v: -v[0])
         best = valid[: config.refine_best]
         chain_rngs = rng.spawn(len(best))
@@ -286,7 +286,7 @@ def grasp_ceiling(
                 client,
                 _refine_and_shake,
                 [(scene, e, q, config, r) for (e, q), r in zip(best, chain_rngs, strict=True)],
-                lambda result: bar.update(),
+                lambda task, result: bar.update(),
             )
     chains.sort(key=lambda c: -c[0])
     refined = [(e, q) for e, q, _, _ in chains]
@@ -308,10 +308,9 @@ def grasp_ceiling(
     )
 
 
-def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, int, list[tuple[float, int]]]:
+def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, list[tuple[float, int]]]:
     """Close the hand at each of the configurations ``q`` (n, 19) in a world of its own: the number of
-    collision-free ones, of colliding ones, and ``(epsilon, index)`` of the valid ones, in the order of
-    ``q``."""
+    collision-free ones and ``(epsilon, index)`` of the valid ones, in the order of ``q``."""
     score = _Scorer(scene)
     try:
         free, valid = 0, []
@@ -320,7 +319,7 @@ def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, int,
             free += ok
             if e >= epsilon:
                 valid.append((e, i))
-        return free, len(q) - free, valid
+        return free, valid
     finally:
         score.world.close()
 

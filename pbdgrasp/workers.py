@@ -164,20 +164,21 @@ def task_client(workers: int):
 
 def map_tasks(client, fn, tasks: list[tuple], done=None) -> list:
     """``[fn(*task) for task in tasks]``, in this process (``client`` None) or on the client's workers, in
-    the order of ``tasks`` whatever the order they finish in; ``done(result)``, if given, is called as
-    each arrives (a progress bar)."""
+    the order of ``tasks`` whatever the order they finish in; ``done(task, result)``, if given, is called
+    as each arrives (a progress bar)."""
     results = [None] * len(tasks)
     if client is None:
         for k, task in enumerate(tasks):
             results[k] = fn(*task)
             if done:
-                done(results[k])
+                done(task, results[k])
         return results
     from distributed import as_completed
 
     futures = {client.submit(fn, *task, pure=False): k for k, task in enumerate(tasks)}
     for future in as_completed(futures):
-        results[futures[future]] = future.result()
+        k = futures[future]
+        results[k] = future.result()
         if done:
-            done(results[futures[future]])
+            done(tasks[k], results[k])
     return results

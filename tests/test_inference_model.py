@@ -6,7 +6,9 @@ import math
 import gtsam
 import numpy as np
 import pytest
+import yaml
 
+import inference.params
 from assets.errors import InputError
 from assets.se3 import local
 from inference import VariationModel, VariationParams, build_graph, factor_covariances, initial_values, solve
@@ -266,12 +268,6 @@ def test_a_singular_factor_covariance_is_a_clear_error(make_traj):
 
 def test_the_documented_parameter_file_states_every_default():
     """The module docstring's YAML is a parameter file: it names every field, with its default."""
-    import dataclasses
-
-    import yaml
-
-    import inference.params
-
     doc = inference.params.__doc__
     block = doc.split("::\n\n", 1)[1].split("\n\n", 1)[0]
     documented = yaml.safe_load(block)
