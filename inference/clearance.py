@@ -111,6 +111,17 @@ class HandClearance:
         out.active_margin_m = float(active_margin_m)
         return out
 
+    def environment_only(self) -> HandClearance:
+        """A copy with the table's and the obstacles' rows alone (no grasped object, no self pairs)."""
+        return HandClearance(
+            self.cover,
+            self.environment,
+            None,
+            clearance_m=self.clearance_m,
+            self_pairs=np.zeros((0, 2), dtype=int),
+            active_margin_m=self.active_margin_m,
+        )
+
     def penetration(self, T_world_object, T_world_wrist, joints) -> np.ndarray:
         """(...,) the smallest distance [m] of a sphere to the scene or of two spheres to each other, without
         clearances: negative where the hand penetrates; exact below ``active_margin_m``."""

@@ -327,13 +327,15 @@ def modeling_covariance(
     grasp_type: str,
     params: VariationParams,
     fingertip_map: FingertipMap | None = None,
+    configuration_weight: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sigma_m(t) (T, 19, 19) in ``[omega, v, joints]``, with the joint floor added (paper section IV).
 
     Without ``params.sigma_m_std_config``: the isotropic fingertip covariance (12x12) is mapped to
     configuration space by ``fingertip_map`` (default: ``assets.sah.fingertip_jacobian`` and
     ``assets.sah.config_cov_from_fingertip_cov`` through ``params.fingertip_cov_map``, i.e.
-    ``J+ cov J+^T``), then the wrist rotation and
+    ``J+ cov J+^T``; with ``by_scene`` the blend ``w_t C_configuration + (1 - w_t) C_finger_joints`` of
+    the two maps, ``w = configuration_weight`` (T,) in [0, 1], zeros if None), then the wrist rotation and
     position variances are added on the ``[omega, v]`` diagonal. With it: ``diag(std^2)``. In both cases
     ``joint_floor_std^2`` is added to every joint's variance so that Sigma_r + Sigma_m is positive definite
     even in joint directions the fingertips do not see.
@@ -350,8 +352,11 @@ def modeling_covariance(
         fingertip_std, wrist_pos_std, wrist_rot_std = params.modeling_stds(grasp_type)
         cov12 = fingertip_std**2 * np.eye(12)
         if fingertip_map is None:
+            w = np.zeros(n) if configuration_weight is None else np.asarray(configuration_weight, float)
+            if w.shape != (n,) or not np.all((w >= 0) & (w <= 1)):
+                raise InputError(f"configuration_weight: expected {n} numbers in [0, 1]")
             cov = _sah_fingertip_map(
-                T_object_wrist, np.asarray(joints, dtype=float), cov12, params.fingertip_cov_map
+                T_object_wrist, np.asarray(joints, dtype=float), cov12, params.fingertip_cov_map, w
             )
         else:
             cov = np.array(fingertip_map(T_object_wrist, np.asarray(joints, dtype=float), cov12), dtype=float)
@@ -367,9 +372,16 @@ def modeling_covariance(
 
 
 def _sah_fingertip_map(
-    T_object_wrist: np.ndarray, joints: np.ndarray, cov12: np.ndarray, through: str
+    T_object_wrist: np.ndarray, joints: np.ndarray, cov12: np.ndarray, through: str, weight: np.ndarray
 ) -> np.ndarray:
     from assets import sah  # imported late: the SAH model is only needed for the default mapping
 
     J = sah.fingertip_jacobian(T_object_wrist, joints)
-    return sah.config_cov_from_fingertip_cov(J, cov12, through=through)
+    if through != "by_scene":
+        return sah.config_cov_from_fingertip_cov(J, cov12, through=through)
+    joints_only = sah.config_cov_from_fingertip_cov(J, cov12, through="finger_joints")
+    if not weight.any():
+        return joints_only
+    coupled = sah.config_cov_from_fingertip_cov(J, cov12, through="configuration")
+    w = weight[:, None, None]
+    return w * coupled + (1.0 - w) * joints_only

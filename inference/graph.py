@@ -33,6 +33,7 @@ __all__ = [
     "key_o",
     "key_w",
     "key_j",
+    "configuration_weights",
     "factor_covariances",
     "build_graph",
     "initial_values",
@@ -55,16 +56,44 @@ def key_j(t: int) -> int:
     return gtsam.symbol("j", t)
 
 
-def factor_covariances(
-    traj: Trajectory, params: VariationParams, fingertip_map: FingertipMap | None = None
+def configuration_weights(
+    traj: Trajectory,
+    params: VariationParams,
+    clearance: ClearanceFn | None,
+    T_world_object: np.ndarray,
 ) -> np.ndarray:
-    """Sigma_r(t) + Sigma_m(t) (T, 19, 19), checked positive definite.
+    """(T,) the weight in [0, 1] of the ``configuration`` map in Sigma_m(t) for ``fingertip_cov_map:
+    by_scene`` (:mod:`inference.params`): ``clip(-m_t / by_scene_depth_mm, 0, 1)``, then the largest over
+    ``by_scene_steps`` steps either side, with ``m_t`` [m] the smallest margin of tau_r(t) placed at
+    ``T_world_object`` to the table and the obstacles (``clearance.environment_only()`` where the
+    clearance has it, else all its rows). Zeros without a clearance."""
+    n = traj.num_steps
+    if clearance is None:
+        return np.zeros(n)
+    environment = getattr(clearance, "environment_only", None)
+    margins_of = environment() if environment is not None else clearance
+    T_world_object = np.asarray(T_world_object, dtype=float)
+    margins = margins_of(T_world_object, T_world_object @ traj.T_object_wrist, np.asarray(traj.joints))
+    m = margins.min(axis=-1) if margins.shape[-1] else np.full(n, np.inf)
+    weight = np.clip(-m / (params.by_scene_depth_mm * 1e-3), 0.0, 1.0)
+    k = params.by_scene_steps
+    return np.array([weight[max(0, t - k) : t + k + 1].max() for t in range(n)])
+
+
+def factor_covariances(
+    traj: Trajectory,
+    params: VariationParams,
+    fingertip_map: FingertipMap | None = None,
+    configuration_weight: np.ndarray | None = None,
+) -> np.ndarray:
+    """Sigma_r(t) + Sigma_m(t) (T, 19, 19), checked positive definite; ``configuration_weight`` (T,) as
+    :func:`inference.factors.modeling_covariance`'s (``by_scene``: :func:`configuration_weights`).
 
     Raises:
         InputError: the sum is not positive definite at some step (raise ``joint_floor_std_deg``).
     """
     cov = np.asarray(traj.cov_retarget) + modeling_covariance(
-        traj.T_object_wrist, traj.joints, traj.grasp_type, params, fingertip_map
+        traj.T_object_wrist, traj.joints, traj.grasp_type, params, fingertip_map, configuration_weight
     )
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     eig_min = np.linalg.eigvalsh(cov).min(axis=-1)

@@ -11,7 +11,9 @@ Every field has the paper's default (or a documented choice where the paper is s
     power_wrist_position_std_mm: 15.0     # +10 mm
     power_wrist_rotation_std_deg: 2.0
     joint_floor_std_deg: 1.0              # added to every joint's variance: keeps f_1t positive definite
-    fingertip_cov_map: configuration      # the fingertip std through the whole Jacobian (or: finger_joints)
+    fingertip_cov_map: by_scene           # configuration where the scene needs it, else finger_joints
+    by_scene_depth_mm: 20.0               # tau_r this deep in the scene's clearance: all configuration
+    by_scene_steps: 5                     # ... and this many steps before and after it
     # smoothness S_t between consecutive steps (per step of the trajectory, 20 Hz in the demonstrations)
     smooth_position_std_mm: 10.0          # the paper's S_t = 10^2 I mm^2
     smooth_rotation_std_deg: 5.0          # our choice: ~100 deg/s at 20 Hz
@@ -47,9 +49,16 @@ Every field has the paper's default (or a documented choice where the paper is s
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
 covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian
 (:func:`assets.sah.config_cov_from_fingertip_cov`): by default of the whole Jacobian
-(``fingertip_cov_map: configuration``: the minimum-norm configuration change, wrist and joints coupled),
-or of its joint columns alone (``finger_joints``: the fingers' joints carry the fingertip std, the wrist
-its own stds, independent). The wrist stds are added on the ``[omega, v]`` block, and the joint floor
+(``configuration``: the minimum-norm configuration change, wrist and joints coupled), or of its joint
+columns alone (``finger_joints``: the fingers' joints carry the fingertip std, the wrist its own stds,
+independent). By default (``by_scene``) the scene chooses per step: the model's wrist can only move
+round an obstacle where Sigma_m couples it to the fingers, but where nothing is in the way the coupled
+map trades the wrist for the fingers and stands the grasp back. The weight of ``configuration`` at step
+t is ``clip(-m_t / by_scene_depth_mm, 0, 1)``, with ``m_t`` the smallest margin of tau_r(t), placed at
+the scene's object pose, to the table and the obstacles (clearance ``clearance_mm`` included; not the
+grasped object, not the hand itself), taken as the largest over ``by_scene_steps`` steps before and after;
+``finger_joints`` has the rest (:func:`inference.graph.configuration_weights`). Without a scene it is
+``finger_joints`` throughout. The wrist stds are added on the ``[omega, v]`` block, and the joint floor
 on the joint block. With ``sigma_m_std_config`` set, Sigma_m is ``diag(sigma_m_std_config^2)`` instead
 (the floor is still added; set ``joint_floor_std_deg: 0`` to state the covariance exactly).
 """
@@ -68,7 +77,11 @@ from assets.errors import InputError
 from assets.q_layout import Q_DIM
 from assets.sah import FINGERTIP_COV_MAPS
 
-__all__ = ["VariationParams"]
+__all__ = ["VariationParams", "SIGMA_M_MAPS"]
+
+SIGMA_M_MAPS = (*FINGERTIP_COV_MAPS, "by_scene")
+"""The values of ``fingertip_cov_map``: the two maps of :func:`assets.sah.config_cov_from_fingertip_cov`
+and their per-step blend by the scene."""
 
 
 @dataclass(frozen=True)
@@ -82,7 +95,9 @@ class VariationParams:
     power_wrist_position_std_mm: float = 15.0
     power_wrist_rotation_std_deg: float = 2.0
     joint_floor_std_deg: float = 1.0
-    fingertip_cov_map: str = "configuration"
+    fingertip_cov_map: str = "by_scene"
+    by_scene_depth_mm: float = 20.0
+    by_scene_steps: int = 5
     smooth_position_std_mm: float = 10.0
     smooth_rotation_std_deg: float = 5.0
     smooth_joint_std_deg: float = 5.0
@@ -125,21 +140,20 @@ class VariationParams:
                 object.__setattr__(self, f.name, tuple(float(x) for x in arr))
                 continue
             if f.name == "fingertip_cov_map":
-                if value not in FINGERTIP_COV_MAPS:
-                    raise InputError(
-                        f"{f.name}: expected one of {', '.join(FINGERTIP_COV_MAPS)}, found {value!r}"
-                    )
+                if value not in SIGMA_M_MAPS:
+                    raise InputError(f"{f.name}: expected one of {', '.join(SIGMA_M_MAPS)}, found {value!r}")
                 continue
             if f.name in ("clearance_sites", "clearance_site_object", "backward_sweep"):
                 if not isinstance(value, bool):
                     raise InputError(f"{f.name}: expected true or false, found {value!r}")
                 continue
-            is_int = f.name in ("max_iterations", "joint_limit_max_iterations")
+            is_int = f.name in ("max_iterations", "joint_limit_max_iterations", "by_scene_steps")
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
             if is_int:
-                if int(value) != value or value < 1:
-                    raise InputError(f"{f.name}: expected an integer >= 1, found {value!r}")
+                least = 0 if f.name == "by_scene_steps" else 1
+                if not math.isfinite(value) or int(value) != value or value < least:
+                    raise InputError(f"{f.name}: expected an integer >= {least}, found {value!r}")
                 object.__setattr__(self, f.name, int(value))
                 continue
             value = float(value)

@@ -29,7 +29,15 @@ from retarget.trajectory import Trajectory
 from .clearance import ClearanceFn
 from .clearance_sites import ClearanceSites
 from .factors import FingertipMap
-from .graph import build_graph, factor_covariances, initial_values, key_j, key_w, means_of
+from .graph import (
+    build_graph,
+    configuration_weights,
+    factor_covariances,
+    initial_values,
+    key_j,
+    key_w,
+    means_of,
+)
 from .joint_limits import JointLimitSites
 from .model import VariationModel
 from .params import VariationParams
@@ -76,7 +84,10 @@ def solve(
     cov_o = traj.cov_object if cov_object is None else cov_object
     cov_o = require_spd("cov_object", require_shape("cov_object", cov_o, (6, 6)))
     n = traj.num_steps
-    cov_f1 = factor_covariances(traj, params, fingertip_map)
+    weight = None
+    if params.fingertip_cov_map == "by_scene":  # the scene chooses Sigma_m's map per step (params.py)
+        weight = configuration_weights(traj, params, clearance, mu_o)
+    cov_f1 = factor_covariances(traj, params, fingertip_map, weight)
     sites = JointLimitSites(joint_limits, n, params)
     clearance_sites = ClearanceSites(clearance, n, mu_o, params)
     constrained = range(n) if clearance is not None else ()

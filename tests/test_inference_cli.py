@@ -17,10 +17,10 @@ def test_infer_writes_a_model(make_traj, tmp_path, capsys):
     assert model.num_steps == 6 and model.converged
     np.testing.assert_array_equal(model.source.joints, traj.joints)
     # the CLI holds the SAH's joint limits: this synthetic tau_r leaves them by up to 24 deg, a model without
-    # the limits by 22 deg; the CLI's means stay inside them
+    # the limits by 11.5 deg; the CLI's means stay inside them
     lo, hi = JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1]
     beyond = lambda j: np.degrees(np.maximum(lo - j, j - hi).max())  # noqa: E731
-    assert beyond(traj.joints) > 20 and beyond(solve(traj).joints_mean) > 20
+    assert beyond(traj.joints) > 20 and beyond(solve(traj).joints_mean) > 10
     assert beyond(model.joints_mean) < 0
 
 
