@@ -22,7 +22,23 @@ from assets.io import atomic_write
 from .paper import PAPER_TABLE1
 from .results_db import TrialRecord
 
-__all__ = ["PLANNER_STYLE", "best_trials", "planner_style", "plot_success", "render_best_grasps"]
+__all__ = [
+    "PLANNER_STYLE",
+    "best_trials",
+    "format_quality",
+    "planner_style",
+    "plot_success",
+    "render_best_grasps",
+]
+
+
+def format_quality(x: float | None) -> str:
+    """A quality to 3 decimals, rounded down (a value under epsilon never prints as epsilon); "—" if
+    missing. The report's tables and figures print qualities with it alike."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "—"
+    return f"{math.floor(x * 1000 + 1e-9) / 1000:.3f}"
+
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +161,7 @@ def render_best_grasps(
             if rec is not None:
                 q = np.asarray(json.loads(rec.grasp_json)["closed_q"], dtype=float)
                 status = "valid" if rec.success else "best attempt, NOT valid"
-                title = f"{rec.planner} #{rec.trial}: eps {rec.quality:.3f} ({status})"
+                title = f"{rec.planner} #{rec.trial}: eps {format_quality(rec.quality)} ({status})"
             elif fallback_q and row in fallback_q:
                 q = np.asarray(fallback_q[row], dtype=float)
                 title = "no grasp evaluated; strategy's mean final step"

@@ -35,7 +35,7 @@ from scipy.stats import binomtest
 from assets.io import atomic_write
 from planning.planners import REGISTRY
 
-from .figures import planner_style, plot_success, render_best_grasps
+from .figures import format_quality, planner_style, plot_success, render_best_grasps
 from .paper import PAPER_TABLE1
 from .results_db import TrialRecord
 
@@ -135,11 +135,6 @@ def _f(x: float | None, fmt: str) -> str:
     return "—" if _missing(x) else format(x, fmt)
 
 
-def _q(x: float | None) -> str:
-    """A quality to 3 decimals, rounded down: a value under epsilon never prints as epsilon."""
-    return "—" if _missing(x) else f"{math.floor(x * 1000 + 1e-9) / 1000:.3f}"
-
-
 def _eta0(eta: float | None, rate: float) -> str:
     if _missing(rate):
         return "—"
@@ -184,7 +179,7 @@ def _other_planners(records: Sequence[TrialRecord], rows: Sequence[str]) -> list
         ok = [r for r in rec if r.success]
         return (
             f"{len(ok) / len(rec):.0%} ({len(rec)}), {_f(_mean([r.eta_s for r in ok]), '.2f')}, "
-            f"{_q(max(r.quality for r in rec))}"
+            f"{format_quality(max(r.quality for r in rec))}"
         )
 
     others = sorted({r.planner for r in records} - set(_PAPER_PLANNERS))
@@ -232,7 +227,7 @@ def _markdown(summaries: list[RowSummary], info: dict, extra: Sequence[str] = ()
         p = PAPER_TABLE1[s.row]
         p_mse = _f(p.mse_mm2, ".1f")
         lines.append(
-            f"| {p.label} | {p.quality:.2f} \\| {_q(s.quality)} "
+            f"| {p.label} | {p.quality:.2f} \\| {format_quality(s.quality)} "
             f"| {p.eta_s:g} \\| {_f(s.eta_s, '.2f')} ({_f(s.success, '.0%')}) "
             f"| {p.nodes} \\| {_f(s.nodes, '.0f')} "
             f"| {p_mse} \\| {_f(s.mse_mm2, '.1f')} "

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pbdgrasp.cli import main
-from pbdgrasp.figures import best_trials
+from pbdgrasp.figures import best_trials, format_quality
 from pbdgrasp.paper import PAPER_TABLE1, ROWS
 from pbdgrasp.report import success_interval, summarize, write_report
 from pbdgrasp.results_db import TrialRecord, load_trials
@@ -396,3 +396,14 @@ def test_the_report_keeps_dirty_in_a_shortened_commit():
 
     assert _short("c764d460cb8c1234abcd-dirty") == "c764d460cb8c-dirty"
     assert _short("c764d460cb8c1234abcd") == "c764d460cb8c" and _short("unknown") == "unknown"
+
+
+@pytest.mark.parametrize(
+    "quality, text",
+    [(0.116935, "0.116"), (0.0499999, "0.049"), (0.05, "0.050"), (0.2674, "0.267"), (None, "—")],
+)
+def test_qualities_print_rounded_down_in_tables_and_figures(quality, text):
+    """A grasp just under epsilon must not read as valid: 0.0499999 prints 0.049 (rounding would say 0.050);
+    the figures' titles use the same text as the tables."""
+    assert format_quality(quality) == text
+    assert format_quality(float("nan")) == "—"
