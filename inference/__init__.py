@@ -4,9 +4,10 @@ trajectory, solved in a scene, its marginals P(X_t | O) and the mixture P(Y) sam
 Modules: :mod:`~inference.params` (parameters, YAML), :mod:`~inference.factors` (the factors),
 :mod:`~inference.graph` (the graph), :mod:`~inference.clearance` (the clearance margins of a sphere-covered
 hand), :mod:`~inference.joint_limits` (joint limits by expectation propagation),
-:mod:`~inference.clearance_sites` (the clearance in the marginals, opt-in), :mod:`~inference.sweep` (a
-start from the grasp backwards), :mod:`~inference.solve` (the solve and the marginals),
-:mod:`~inference.model` (the result and its ``.model.npz`` file), :mod:`~inference.sampler` (P(Y)).
+:mod:`~inference.clearance_sites` (the clearance in the marginals, opt-in), :mod:`~inference.contact` (the
+demonstrated contacts held at the grasp), :mod:`~inference.sweep` (a start from the grasp backwards),
+:mod:`~inference.solve` (the solve and the marginals), :mod:`~inference.model` (the result and its
+``.model.npz`` file), :mod:`~inference.sampler` (P(Y)).
 """
 
 from .graph import build_graph, factor_covariances, initial_values

@@ -122,6 +122,20 @@ class HandClearance:
             active_margin_m=self.active_margin_m,
         )
 
+    def object_only(self, active_margin_m: float) -> HandClearance | None:
+        """A copy with the grasped object's sphere rows alone, exact below ``active_margin_m`` [m]; None
+        without an object field."""
+        if self.object_field is None:
+            return None
+        return HandClearance(
+            self.cover,
+            (),
+            self.object_field,
+            object_clearance_m=self.object_clearance_m,
+            self_pairs=np.zeros((0, 2), dtype=int),
+            active_margin_m=active_margin_m,
+        )
+
     def penetration(self, T_world_object, T_world_wrist, joints) -> np.ndarray:
         """(...,) the smallest distance [m] of a sphere to the scene or of two spheres to each other, without
         clearances: negative where the hand penetrates; exact below ``active_margin_m``."""

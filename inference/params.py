@@ -28,6 +28,11 @@ Every field has the paper's default (or a documented choice where the paper is s
     self_clearance_mm: 5.0                # between spheres of phalanges of different fingers (was 2)
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     hinge_smoothing_mm: 0.5               # the hinge's smoothing length (inference.factors.clearance_error)
+    # the demonstrated contacts held at the grasp: f_4t on the margins to the object (inference.contact)
+    precision_contact_steps: 0            # the last steps that hold them, precision grasps (0: none)
+    power_contact_steps: 15               # ... power grasps
+    contact_reach_mm: 10.0                # spheres of tau_r this near the object (beyond its clearance) hold
+    contact_std_mm: 2.0                   # R_t = (contact_std / (1 - w_t))^2, w_t the scene's weight
     # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
     joint_limit_min_probability: 1.0e-4   # a joint whose marginal puts more beyond a limit gets a site
     joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
@@ -79,6 +84,15 @@ from assets.sah import FINGERTIP_COV_MAPS
 
 __all__ = ["VariationParams", "SIGMA_M_MAPS"]
 
+_INT_FIELDS = (
+    "max_iterations",
+    "joint_limit_max_iterations",
+    "by_scene_steps",
+    "precision_contact_steps",
+    "power_contact_steps",
+)
+_MAY_BE_ZERO = ("by_scene_steps", "precision_contact_steps", "power_contact_steps")
+
 SIGMA_M_MAPS = (*FINGERTIP_COV_MAPS, "by_scene")
 """The values of ``fingertip_cov_map``: the two maps of :func:`assets.sah.config_cov_from_fingertip_cov`
 and their per-step blend by the scene."""
@@ -109,6 +123,10 @@ class VariationParams:
     self_clearance_mm: float = 5.0
     constraint_std_mm: float = 2.0
     hinge_smoothing_mm: float = 0.5
+    precision_contact_steps: int = 0
+    power_contact_steps: int = 15
+    contact_reach_mm: float = 10.0
+    contact_std_mm: float = 2.0
     joint_limit_min_probability: float = 1e-4
     joint_limit_damping: float = 0.5
     joint_limit_max_iterations: int = 50
@@ -147,11 +165,11 @@ class VariationParams:
                 if not isinstance(value, bool):
                     raise InputError(f"{f.name}: expected true or false, found {value!r}")
                 continue
-            is_int = f.name in ("max_iterations", "joint_limit_max_iterations", "by_scene_steps")
+            is_int = f.name in _INT_FIELDS
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
             if is_int:
-                least = 0 if f.name == "by_scene_steps" else 1
+                least = 0 if f.name in _MAY_BE_ZERO else 1
                 if not math.isfinite(value) or int(value) != value or value < least:
                     raise InputError(f"{f.name}: expected an integer >= {least}, found {value!r}")
                 object.__setattr__(self, f.name, int(value))
@@ -183,6 +201,10 @@ class VariationParams:
             self._of_grasp_type(grasp_type, "wrist_position_std_mm") * 1e-3,
             math.radians(self._of_grasp_type(grasp_type, "wrist_rotation_std_deg")),
         )
+
+    def contact_steps(self, grasp_type: str) -> int:
+        """The last steps that hold the demonstrated contacts (:mod:`inference.contact`) for a grasp type."""
+        return int(self._of_grasp_type(grasp_type, "contact_steps"))
 
     def object_clearance_m(self, grasp_type: str) -> float:
         """The clearance of the hand's spheres from the grasped object [m] for a grasp type."""

@@ -28,6 +28,7 @@ from retarget.trajectory import Trajectory
 
 from .clearance import ClearanceFn
 from .clearance_sites import ClearanceSites
+from .contact import contact_factors, contact_plan
 from .factors import FingertipMap
 from .graph import (
     build_graph,
@@ -35,6 +36,7 @@ from .graph import (
     factor_covariances,
     initial_values,
     key_j,
+    key_o,
     key_w,
     means_of,
 )
@@ -84,15 +86,19 @@ def solve(
     cov_o = traj.cov_object if cov_object is None else cov_object
     cov_o = require_spd("cov_object", require_shape("cov_object", cov_o, (6, 6)))
     n = traj.num_steps
-    weight = None
-    if params.fingertip_cov_map == "by_scene":  # the scene chooses Sigma_m's map per step (params.py)
-        weight = configuration_weights(traj, params, clearance, mu_o)
-    cov_f1 = factor_covariances(traj, params, fingertip_map, weight)
+    scene_weight = configuration_weights(traj, params, clearance, mu_o)  # zeros without a scene
+    by_scene = params.fingertip_cov_map == "by_scene"  # the scene chooses Sigma_m's map per step (params.py)
+    cov_f1 = factor_covariances(traj, params, fingertip_map, scene_weight if by_scene else None)
     sites = JointLimitSites(joint_limits, n, params)
     clearance_sites = ClearanceSites(clearance, n, mu_o, params)
     constrained = range(n) if clearance is not None else ()
 
     base = build_graph(traj, params, cov_f1, mu_o, None, clearance, constrained, fixed_object=True)
+    contacts = contact_plan(traj, params, clearance, mu_o, scene_weight)
+    if contacts is not None:  # the demonstrated contacts held at the grasp (inference.contact)
+        for f in contact_factors(contacts, key_o(), [(key_w(t), key_j(t)) for t in range(n)], mu_o):
+            base.add(f)
+        log.info("solve: %d contact rows on %d steps", contacts.num_rows, len(contacts.steps))
 
     def graph_at() -> gtsam.NonlinearFactorGraph:  # the same factors (and their clearance cache) + the sites
         return clearance_sites.add_to(sites.add_to(gtsam.NonlinearFactorGraph(base)))
