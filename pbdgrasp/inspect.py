@@ -24,6 +24,8 @@ from inference.model import VariationModel
 from planning.grasp_planner import GraspPlanner
 from planning.scene import Scene
 
+from .report import success_interval
+
 __all__ = ["HIT_KINDS", "Inspection", "inspect_model", "plot_free_fraction"]
 
 HIT_KINDS = ("object", "environment", "self")
@@ -73,6 +75,11 @@ class Inspection:
             d["valid_of_free"] = None
         return json.dumps(d, indent=2)
 
+    def _interval(self, fraction: float) -> str:
+        """The 95 % Wilson interval of a fraction of this inspection's draws, as text."""
+        low, high = success_interval(round(fraction * self.draws), self.draws)
+        return f"95 % interval {low:.0%}-{high:.0%}"
+
     def summary(self) -> str:
         """A few lines for the terminal: the model, the worst step and the last step."""
         free = np.asarray(self.free_fraction)
@@ -83,13 +90,15 @@ class Inspection:
         lines = [
             f"model: {self.iterations} iterations, {'converged' if self.converged else 'NOT converged'}, "
             f"solve {self.solve_time_s:.1f} s, {self.constrained_steps} constrained steps",
-            f"collision-free draws ({self.draws} per step): min {free.min():.0%} at step {worst}, "
+            f"collision-free draws ({self.draws} per step): min {free.min():.0%} at step {worst} "
+            f"({self._interval(free.min())}; the least of {len(free)} estimates, biased low), "
             f"mean {free.mean():.0%}, last step {free[-1]:.0%}",
             f"at step {worst} the draws penetrate: "
             + ", ".join(f"{name} {self.hits[name][worst]:.0%}" for name in HIT_KINDS)
             + (f"; {_top_links(self.links[worst])}" if self.links[worst] else ""),
-            f"last step: {self.valid_fraction:.0%} close to a valid grasp (epsilon >= {self.epsilon:g}; "
-            f"{of_free}), best epsilon {self.best_epsilon:.3f}",
+            f"last step: {self.valid_fraction:.0%} close to a valid grasp "
+            f"({self._interval(self.valid_fraction)}; epsilon >= {self.epsilon:g}; {of_free}), "
+            f"best epsilon {self.best_epsilon:.3f}",
         ]
         last = len(free) - 1
         if worst != last and self.links[last]:

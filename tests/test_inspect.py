@@ -75,6 +75,9 @@ def test_a_model_through_the_table_collides_with_the_table_in_every_draw(point_m
     assert result.free_fraction == (0.0,) * STEPS
     assert result.hits["environment"] == (1.0,) * STEPS
     assert "environment 100%" in result.summary() and "no draw free" in result.summary()
+    z2 = 1.959963984540054**2  # none of n: the Wilson interval is [0, z^2 / (n + z^2)] (closed form)
+    assert f"min 0% at step 0 (95 % interval 0%-{z2 / (4 + z2):.0%};" in result.summary()
+    assert f"valid grasp (95 % interval 0%-{z2 / (4 + z2):.0%};" in result.summary()
     assert np.isnan(result.valid_of_free) and json.loads(result.to_json())["valid_of_free"] is None
     assert all(result.links[t] and set(result.links[t].values()) == {1.0} for t in range(STEPS))
 
