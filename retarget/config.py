@@ -15,7 +15,15 @@ from assets.sah import FINGERTIP_COV_MAPS
 
 from .final_grasp import FinalGraspConfig
 
-__all__ = ["PAPER_WEIGHTS", "TARGETS", "FINAL_GRASPS", "IsFree", "Penetration", "RetargetConfig"]
+__all__ = [
+    "PAPER_WEIGHTS",
+    "SCALED_WRIST_WEIGHTS",
+    "TARGETS",
+    "FINAL_GRASPS",
+    "IsFree",
+    "Penetration",
+    "RetargetConfig",
+]
 
 PAPER_WEIGHTS: tuple[float, ...] = (3.0, 1.0, 1.0, 1.0, 0.1, 10000.0, 10.0)
 """(w1..w7) of the paper for the SAH: thumb, index, middle, ring, wrist, collision, smoothness."""
@@ -25,6 +33,17 @@ TARGETS = ("by_grasp_type", "fingertips", "scaled")
 
 FINAL_GRASPS = ("by_grasp_type", "paper", "refined")
 """What the last step is (:attr:`RetargetConfig.final_grasp`)."""
+
+SCALED_WRIST_WEIGHTS: dict[str, float] = {"salt": 3.0}
+"""w5 of the strategies (by the demonstration's object) whose scaled targets, with the paper's w5, pull
+the palm off the human palm's place; measured in docs/method.md (retargeting's addition 9): salt's best
+grasps 0.125-0.149 over three seeds against 0.101-0.123, while the chips strategy, which the bottle
+borrows, loses the bottle with any heavier w5. The others keep the paper's 0.1."""
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
 
 IsFree = Callable[[np.ndarray], bool]
 """``is_free(q)``: q (19,) = [p (m), rotation vector (rad), 13 joints (rad)], SAH in the OBJECT frame."""
@@ -77,6 +96,11 @@ class RetargetConfig:
             beyond the human's, stop at contact around it instead of the wrist standing back.
             ``"by_grasp_type"`` (the default): ``"scaled"`` for a power grasp, ``"fingertips"`` for a
             precision grasp (measured: docs/results.md, "Strategies that hold").
+        scaled_wrist_weight: w5 where the targets are ``"scaled"``: a number, None (``weights[4]``, the
+            paper's 0.1) or ``"by_strategy"`` (the default): :data:`SCALED_WRIST_WEIGHTS` for the
+            demonstration's object, else the paper's. Scaled targets lie beyond the object by design, so
+            with the paper's w5 the thumb's (w1 = 3) can pull the palm off the human palm's place (salt:
+            the thumb over the box's top); a heavier wrist keeps the palm where the human's was.
         covariance_map: how Sigma_r(t)'s fingertip covariance is realised in the configuration
             (:func:`assets.sah.config_cov_from_fingertip_cov`): ``"configuration"`` (the default), the
             pseudo-inverse of the whole fingertip Jacobian, wrist and joints sharing it (mostly the wrist:
@@ -112,6 +136,7 @@ class RetargetConfig:
     max_wrist_step_mm: float = 50.0
     max_wrist_step_deg: float = 20.0
     targets: str = "by_grasp_type"
+    scaled_wrist_weight: float | str | None = "by_strategy"
     covariance_map: str = "configuration"
     final_grasp: str = "by_grasp_type"
     final_grasp_settings: FinalGraspConfig = field(default_factory=FinalGraspConfig)
@@ -135,6 +160,11 @@ class RetargetConfig:
         trust = (self.max_wrist_step_mm, self.max_wrist_step_deg)
         if not (self.contact_stop_iterations >= 1 and all(np.isfinite(v) and v > 0 for v in trust)):
             raise InputError("contact_stop_iterations must be >= 1, max_wrist_step_mm and _deg > 0")
+        w5 = self.scaled_wrist_weight
+        if not (w5 is None or w5 == "by_strategy" or (_is_number(w5) and np.isfinite(w5) and w5 >= 0)):
+            raise InputError(
+                f"scaled_wrist_weight: expected a number >= 0, None or 'by_strategy', found {w5!r}"
+            )
         if self.targets not in TARGETS:
             raise InputError(f"targets: expected one of {', '.join(TARGETS)}, found {self.targets!r}")
         if self.covariance_map not in FINGERTIP_COV_MAPS:
@@ -154,6 +184,16 @@ class RetargetConfig:
         if self.targets == "by_grasp_type":
             return "scaled" if grasp_type == "power" else "fingertips"
         return self.targets
+
+    def weights_for(self, targets: str, strategy: str | None = None) -> tuple[float, ...]:
+        """(w1..w7) for ``"fingertips"`` or ``"scaled"`` targets of the demonstration of object
+        ``strategy``: :attr:`weights`, with w5 from :attr:`scaled_wrist_weight` for scaled ones."""
+        w5 = self.scaled_wrist_weight
+        if w5 == "by_strategy":
+            w5 = SCALED_WRIST_WEIGHTS.get(strategy)
+        if targets != "scaled" or w5 is None:
+            return self.weights
+        return (*self.weights[:4], float(w5), *self.weights[5:])
 
     def final_grasp_for(self, grasp_type: str) -> str:
         """``"paper"`` or ``"refined"``: :attr:`final_grasp` for a demonstration's grasp type."""

@@ -340,8 +340,9 @@ def retarget_demonstration(
     if mode == "scaled":
         scale = hand_scale(vf)
         targets = scaled_targets(targets, demo.T_object_wrist, scale)
+    step_config = dataclasses.replace(config, weights=config.weights_for(mode, demo.object))
     result = retarget_fingertips(
-        targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=config,
+        targets, demo.T_object_wrist, T_hwrist_rwrist=T_hwrist_rwrist, is_free=is_free, config=step_config,
         progress=progress, penetration=penetration,
     )  # fmt: skip
     meta = dict(result.meta)

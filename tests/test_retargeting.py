@@ -9,6 +9,7 @@ from assets import sah
 from assets import se3 as lie
 from assets.errors import InputError
 from retarget.retargeting import (
+    PAPER_WEIGHTS,
     RetargetConfig,
     fingertip_cov_to_config,
     palm_alignment,
@@ -226,6 +227,10 @@ def test_palm_alignment_keeps_the_axes():
         ({"max_wrist_step_mm": 0.0}, "max_wrist_step_mm"),
         ({"max_wrist_step_deg": float("inf")}, "max_wrist_step_mm and _deg"),
         ({"targets": "contacts"}, "targets"),
+        ({"scaled_wrist_weight": -1.0}, "scaled_wrist_weight"),
+        ({"scaled_wrist_weight": float("nan")}, "scaled_wrist_weight"),
+        ({"scaled_wrist_weight": "by_object"}, "scaled_wrist_weight"),
+        ({"scaled_wrist_weight": True}, "scaled_wrist_weight"),
         ({"covariance_map": "wrist"}, "covariance_map: expected one of configuration, finger_joints"),
         ({"final_grasp": "best"}, "final_grasp: expected one of by_grasp_type, paper, refined"),
         ({"final_grasp_settings": {"draws": 8}}, "final_grasp_settings: expected a FinalGraspConfig"),
@@ -234,6 +239,17 @@ def test_palm_alignment_keeps_the_axes():
 def test_invalid_config(kwargs, match):
     with pytest.raises(InputError, match=match):
         RetargetConfig(**kwargs)
+
+
+def test_scaled_targets_take_their_own_wrist_weight_and_fingertip_targets_the_papers():
+    by_strategy = RetargetConfig()  # salt's w5 is 3, every other strategy's the paper's
+    assert by_strategy.weights_for("scaled", "salt") == (3.0, 1.0, 1.0, 1.0, 3.0, 10000.0, 10.0)
+    assert by_strategy.weights_for("scaled", "chips") == PAPER_WEIGHTS
+    assert by_strategy.weights_for("fingertips", "salt") == PAPER_WEIGHTS
+    assert RetargetConfig(scaled_wrist_weight=None).weights_for("scaled", "salt") == PAPER_WEIGHTS
+    heavy = RetargetConfig(scaled_wrist_weight=2.5)
+    assert heavy.weights_for("scaled", "chips")[4] == 2.5
+    assert heavy.weights_for("fingertips", "chips") == PAPER_WEIGHTS
 
 
 def test_hand_scale_is_the_ratio_of_the_straight_hands_palm_to_tip_distances():
@@ -381,8 +397,37 @@ def test_a_power_strategy_touches_its_object_with_the_palm_or_the_proximal_links
 
     d, res = _last_step_distances(name, "by_grasp_type")
     assert res.meta["targets"] == "scaled"
+    assert res.meta["weights"][4] == (3.0 if name == "salt" else 0.1)  # the trajectory records its w5
     assert min(d[link] for link in _PALM_LINKS) <= TOUCH_M, {k: round(1e3 * v, 1) for k, v in d.items()}
     assert res.meta["last_step"]["palm_to_object_mm"] < 15.0  # a wrap (the paper's targets: 30+ mm)
     if name == "chips":  # the paper's targets: the palm stands back, only fingertips and distals near
         d_paper, _ = _last_step_distances(name, "fingertips")
         assert d_paper["wrist"] > 0.03
+
+
+def test_a_heavier_scaled_wrist_weight_keeps_the_palm_at_the_human_palms_place():
+    """Salt's last 12 steps: with the paper's w5 the thumb's scaled target pulls the SAH palm centre 55 mm
+    from the human's (the palm 12 mm off the box); with w5 = 3, 19 mm (5 mm off the box)."""
+    from dataclasses import fields, replace
+
+    from assets import human_hand
+    from pbdgrasp.strategy import retarget_in_scene
+    from planning.scene import load_scene
+    from retarget.demonstration import Demonstration
+    from retarget.objective import palm_centre
+
+    demo = Demonstration.load("salt")
+    n, k = demo.num_steps, 12
+    per_step = [f.name for f in fields(demo) if np.shape(getattr(demo, f.name))[:1] == (n,)]
+    tail = replace(demo, **{name: getattr(demo, name)[n - k :] for name in per_step})
+    T_h = demo.T_object_wrist[-1]
+    p_h = T_h[:3, :3] @ palm_centre(human_hand) + T_h[:3, 3]
+    gap, to_object = {}, {}
+    for w5 in (None, 3.0):
+        _, res = retarget_in_scene(tail, load_scene("salt"), RetargetConfig(scaled_wrist_weight=w5))
+        assert res.meta["weights"][4] == (0.1 if w5 is None else w5)
+        T_r = res.T_object_wrist[-1]
+        gap[w5] = np.linalg.norm(T_r[:3, :3] @ palm_centre(sah) + T_r[:3, 3] - p_h)
+        to_object[w5] = res.meta["last_step"]["palm_to_object_mm"]
+    assert gap[3.0] < 0.03 and gap[3.0] < gap[None] - 0.02, gap
+    assert to_object[3.0] < to_object[None], to_object

@@ -13,7 +13,7 @@ from pathlib import Path
 from assets.errors import InputError
 from retarget.config import FINAL_GRASPS, TARGETS
 
-from ._args import int_in, output_file, seed
+from ._args import float_in, int_in, output_file, seed
 
 NAME = "retarget"
 HELP = "retarget a human demonstration to the SAH: write tau_r and Sigma_r(t) (.traj.npz)"
@@ -47,6 +47,14 @@ def add_arguments(p) -> None:
         help="fingertip targets: the paper's human fingertips, or scaled from the palm by the hand-size "
         "ratio (default by_grasp_type: scaled for power grasps)",
     )
+    p.add_argument(
+        "--scaled-wrist-weight",
+        type=float_in(0.0, 1e4),
+        default=None,
+        metavar="W5",
+        help="w5 of the wrist distance where the targets are scaled (default by strategy: 3 for salt, "
+        "the paper's 0.1 for the others; docs/method.md)",
+    )
     add_final_grasp_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
@@ -70,6 +78,8 @@ def config_of(args, **settings):
 
     if args.max_nfev is not None:
         settings["max_nfev"] = args.max_nfev
+    if getattr(args, "scaled_wrist_weight", None) is not None:
+        settings["scaled_wrist_weight"] = args.scaled_wrist_weight
     return RetargetConfig(
         final_grasp=args.final_grasp, final_grasp_settings=FinalGraspConfig(seed=args.seed), **settings
     )
