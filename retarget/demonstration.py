@@ -225,11 +225,21 @@ class Demonstration:
         Raises:
             InputError: fewer than 2 steps.
         """
-        if n >= self.num_steps:
-            return self
+        return self if n >= self.num_steps else self._steps(slice(None, n))
+
+    def last_steps(self, n: int) -> Demonstration:
+        """The demonstration's last ``n`` steps (all of them when ``n`` is not smaller), every per-step
+        array cut alike; the time stamps keep their values.
+
+        Raises:
+            InputError: fewer than 2 steps.
+        """
+        return self if n >= self.num_steps else self._steps(slice(self.num_steps - n, None))
+
+    def _steps(self, steps: slice) -> Demonstration:
         whole = self.num_steps
         cut = {
-            f.name: getattr(self, f.name)[:n]
+            f.name: getattr(self, f.name)[steps]
             for f in fields(self)
             if isinstance(getattr(self, f.name), np.ndarray) and getattr(self, f.name).shape[:1] == (whole,)
         }

@@ -155,7 +155,7 @@ def test_bad_files(tmp_path):
         Demonstration.load("teapot")
 
 
-def test_first_steps_cuts_every_per_step_array_alike():
+def test_first_and_last_steps_cut_every_per_step_array_alike():
     from retarget.demonstration import Demonstration
 
     demo = Demonstration.load("ham")
@@ -165,3 +165,8 @@ def test_first_steps_cuts_every_per_step_array_alike():
         np.testing.assert_array_equal(getattr(head, name), getattr(demo, name)[:5])
     np.testing.assert_array_equal(head.T_world_object_mean, demo.T_world_object_mean)
     assert demo.first_steps(demo.num_steps) is demo and demo.first_steps(10_000) is demo
+    tail = demo.last_steps(5)
+    assert tail.num_steps == 5 and tail.object == demo.object
+    for name in ("T_object_wrist", "joints", "t_s", "T_object_wrist_true", "joints_true"):
+        np.testing.assert_array_equal(getattr(tail, name), getattr(demo, name)[-5:])
+    assert demo.last_steps(demo.num_steps) is demo

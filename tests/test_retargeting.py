@@ -408,8 +408,6 @@ def test_a_power_strategy_touches_its_object_with_the_palm_or_the_proximal_links
 def test_a_heavier_scaled_wrist_weight_keeps_the_palm_at_the_human_palms_place():
     """Salt's last 12 steps: with the paper's w5 the thumb's scaled target pulls the SAH palm centre 55 mm
     from the human's (the palm 12 mm off the box); with w5 = 3, 19 mm (5 mm off the box)."""
-    from dataclasses import fields, replace
-
     from assets import human_hand
     from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
@@ -417,9 +415,7 @@ def test_a_heavier_scaled_wrist_weight_keeps_the_palm_at_the_human_palms_place()
     from retarget.objective import palm_centre
 
     demo = Demonstration.load("salt")
-    n, k = demo.num_steps, 12
-    per_step = [f.name for f in fields(demo) if np.shape(getattr(demo, f.name))[:1] == (n,)]
-    tail = replace(demo, **{name: getattr(demo, name)[n - k :] for name in per_step})
+    tail = demo.last_steps(12)
     T_h = demo.T_object_wrist[-1]
     p_h = T_h[:3, :3] @ palm_centre(human_hand) + T_h[:3, 3]
     gap, to_object = {}, {}
