@@ -16,6 +16,7 @@ naming the field.
 from __future__ import annotations
 
 import io
+import math
 import os
 import stat
 import tempfile
@@ -194,6 +195,20 @@ def require_shape(name: str, array, shape: tuple, path=None, dtype=float) -> np.
     if not ok:
         raise InputError(f"{name}: expected shape {_fmt(shape)}, found {arr.shape}", path)
     return arr
+
+
+def is_number(value) -> bool:
+    """True for a number as a JSON or YAML parser returns it (a Python int or float), never a bool.
+
+    ``True`` and ``False`` are ints in Python; a configuration field that reads ``true`` is a mistake,
+    not 1. Finiteness is the caller's check (some fields take infinity).
+    """
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def is_finite_number(value) -> bool:
+    """:func:`is_number` and finite."""
+    return is_number(value) and math.isfinite(value)
 
 
 def require_finite(name: str, array, path=None) -> np.ndarray:

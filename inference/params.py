@@ -79,6 +79,7 @@ import numpy as np
 import yaml
 
 from assets.errors import InputError
+from assets.io import is_number
 from assets.q_layout import Q_DIM
 from assets.sah import FINGERTIP_COV_MAPS
 
@@ -166,7 +167,7 @@ class VariationParams:
                     raise InputError(f"{f.name}: expected true or false, found {value!r}")
                 continue
             is_int = f.name in _INT_FIELDS
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
+            if not is_number(value):
                 raise InputError(f"{f.name}: expected a number, found {value!r}")
             if is_int:
                 least = 0 if f.name in _MAY_BE_ZERO else 1

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from assets.errors import InputError
-from assets.io import atomic_write
+from assets.io import atomic_write, is_finite_number
 from assets.q_layout import JOINTS, POS, ROT
 
 from .hand_urdf import hand_joint_names, hand_rest_joints
@@ -40,7 +40,7 @@ def _vector(value, field: str, n: int, path) -> np.ndarray:
     if not isinstance(value, list) or len(value) != n:
         raise InputError(f"{field}: expected a list of {n} numbers, found {value!r}", path)
     for i, x in enumerate(value):
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+        if not is_finite_number(x):
             raise InputError(f"{field}[{i}]: expected a finite number, found {x!r}", path)
     return np.array(value, dtype=float)
 
@@ -109,7 +109,7 @@ def _parse(d, hand: str, path) -> np.ndarray:
     for name, value in named.items():
         if name not in names:
             raise InputError(f"joints_deg.{name}: unknown joint; valid: {', '.join(names)}", path)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if not is_finite_number(value):
             raise InputError(f"joints_deg.{name}: expected a finite number, found {value!r}", path)
         joints[names.index(name)] = math.radians(value)
     return np.concatenate(

@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
+from assets.io import is_number
 from assets.se3 import make_pose
 
 __all__ = [
@@ -190,7 +191,7 @@ class _Reader:
         return value
 
     def number(self, value, field_name: str, positive: bool = False, nonneg: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if not is_number(value):
             self.fail(field_name, f"expected a number, found {type(value).__name__} {value!r}")
         x = float(value)
         if not math.isfinite(x):

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from assets.errors import InputError
+from assets.io import is_finite_number
 from assets.sah import FINGERTIP_COV_MAPS
 
 from .final_grasp import FinalGraspConfig
@@ -39,10 +40,6 @@ SCALED_WRIST_WEIGHTS: dict[str, float] = {"salt": 3.0}
 the palm off the human palm's place; measured in docs/method.md (retargeting's addition 9): salt's best
 grasps 0.125-0.149 over three seeds against 0.101-0.123, while the chips strategy, which the bottle
 borrows, loses the bottle with any heavier w5. The others keep the paper's 0.1."""
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 IsFree = Callable[[np.ndarray], bool]
@@ -161,7 +158,7 @@ class RetargetConfig:
         if not (self.contact_stop_iterations >= 1 and all(np.isfinite(v) and v > 0 for v in trust)):
             raise InputError("contact_stop_iterations must be >= 1, max_wrist_step_mm and _deg > 0")
         w5 = self.scaled_wrist_weight
-        if not (w5 is None or w5 == "by_strategy" or (_is_number(w5) and np.isfinite(w5) and w5 >= 0)):
+        if not (w5 is None or w5 == "by_strategy" or (is_finite_number(w5) and w5 >= 0)):
             raise InputError(
                 f"scaled_wrist_weight: expected a number >= 0, None or 'by_strategy', found {w5!r}"
             )

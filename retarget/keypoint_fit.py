@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from assets import human_hand
 from assets.errors import InputError
+from assets.io import is_finite_number
 from assets.kinematics import HandModel
 from assets.se3 import make_pose, se3_inverse, skew, so3_exp
 
@@ -174,7 +175,7 @@ class KeypointFitConfig:
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (np.isfinite(v) and v > 0):
+            if not (is_finite_number(v) and v > 0):
                 raise InputError(f"{f.name}: expected a finite number > 0, found {v!r}")
 
 

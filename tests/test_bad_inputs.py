@@ -19,6 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from assets.errors import InputError
+from assets.io import is_finite_number, is_number
 from inference.model import VariationModel
 from inference.params import VariationParams
 from pbdgrasp.cli import main
@@ -119,6 +120,26 @@ def test_bad_file_gives_exit_2_and_one_line_naming_the_file(name, tmp_path, caps
     assert lines[0].startswith(f"error: {path}: "), lines[0]
     assert re.search(entry["expect"], lines[0]), (entry["expect"], lines[0])
     assert not list(tmp_path.iterdir())  # no output, not even a partial one
+
+
+@pytest.mark.parametrize(
+    ("value", "number", "finite"),
+    [
+        (0, True, True),
+        (-2.5, True, True),
+        (float("inf"), True, False),
+        (float("nan"), True, False),
+        (True, False, False),
+        (False, False, False),
+        ("1", False, False),
+        (None, False, False),
+        ([1.0], False, False),
+    ],
+)
+def test_a_number_field_takes_ints_and_floats_never_bools(value, number, finite):
+    """The one test every loader applies to a scalar field (YAML's ``true`` is not 1)."""
+    assert is_number(value) is number
+    assert is_finite_number(value) is finite
 
 
 def test_the_good_trajectory_is_accepted(tmp_path):
