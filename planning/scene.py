@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 import assets
 from assets.errors import InputError
 from assets.io import is_number
-from assets.se3 import make_pose
+from assets.se3 import make_pose, skew
 
 __all__ = [
     "DEMONSTRATED_OBJECTS",
@@ -74,8 +74,10 @@ class SceneObject:
         name: an object of ``assets.objects()``.
         position_m: (3,) origin of the object frame (centre of its bottom face) in the world [m].
         rpy_deg: (3,) orientation, see the module docstring [deg].
-        position_std_mm: standard deviation of each position coordinate (the paper: 3 mm).
-        rotation_std_deg: standard deviation of each rotation-vector coordinate.
+        position_std_mm: standard deviation of each coordinate of the object's position, that of its centre
+            of mass (the paper: 3 mm).
+        rotation_std_deg: standard deviation of each rotation-vector coordinate, a rotation about the
+            centre of mass.
     """
 
     name: str
@@ -148,12 +150,21 @@ class Scene:
     def cov_object(self) -> np.ndarray:
         """Localization covariance (6, 6) of the object pose, GTSAM Pose3 tangent [omega (rad), v (m)].
 
-        Body frame, right perturbation ``T = T_world_object @ Exp(xi)``; rotation first, as in GTSAM.
-        Isotropic blocks, so the body and world frames give the same matrix.
+        Body frame, right perturbation ``T = T_world_object @ Exp(xi)``; rotation first, as in GTSAM. A
+        localizer estimates where the object is, its centre, and how it is turned about that centre: the
+        errors are isotropic (``position_std_mm``, ``rotation_std_deg``) for the centre of mass ``c`` of
+        the object's metadata and a rotation about it, ``Sigma_c = diag(rot^2 I, pos^2 I)``, carried to the
+        object frame's origin (the centre of its bottom face) by the adjoint of the translation ``c``:
+        ``Sigma_o = Ad Sigma_c Ad^T``, ``Ad = [[I, 0], [[c]x, I]]``. So the centre moves by ``pos`` whatever
+        the rotation, and a point at distance ``d`` from it by ``rot * d`` more.
         """
         rot = math.radians(self.object.rotation_std_deg) ** 2
         pos = (self.object.position_std_mm * 1e-3) ** 2
-        return np.diag([rot] * 3 + [pos] * 3)
+        c = np.asarray(assets.object_metadata(self.object.name)["center_of_mass_m"], dtype=float)
+        adjoint = np.eye(6)
+        adjoint[3:, :3] = skew(c)
+        cov = adjoint @ np.diag([rot] * 3 + [pos] * 3) @ adjoint.T
+        return 0.5 * (cov + cov.T)
 
     @property
     def bounds_array(self) -> np.ndarray:
