@@ -111,6 +111,12 @@ class HandClearance:
         out.active_margin_m = float(active_margin_m)
         return out
 
+    def with_object(self, object_field) -> HandClearance:
+        """A copy whose grasped object is ``object_field`` (in the object frame), everything else equal."""
+        out = copy.copy(self)
+        out.object_field = object_field
+        return out
+
     def environment_only(self) -> HandClearance:
         """A copy with the table's and the obstacles' rows alone (no grasped object, no self pairs)."""
         return HandClearance(

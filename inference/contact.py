@@ -14,6 +14,12 @@ demonstrated contact, outside the clearance), and ``R_t = (contact_std / (1 - w_
 the scene's weight of :func:`inference.graph.configuration_weights`: where the scene makes the strategy
 move round an obstacle the demonstrated contacts give way, and at ``w_t >= MAX_WEIGHT`` they are not
 held at all. Without a scene or an object field there are none.
+
+Where the scene's object is not the demonstration's (a strategy carried to a similar object: the chips
+strategy on the bottle), the rows and r_t are tau_r's margins to the *demonstrated* object placed at the
+scene's object pose, and the factors hold the same margins to the scene's object: the hand touches the
+new object where the demonstration touched its own, instead of keeping the distance that tau_r, made
+for the other object, happens to have to it (5 mm more for the bottle's smaller radius).
 """
 
 from __future__ import annotations
@@ -67,15 +73,19 @@ def contact_plan(
     clearance: ClearanceFn | None,
     T_world_object: np.ndarray,
     weight: np.ndarray,
+    demonstrated: ClearanceFn | None = None,
 ) -> ContactPlan | None:
     """The contacts of tau_r at ``T_world_object`` (4, 4) (module docstring); ``weight`` (T,) the scene's
-    ``w_t``. None where nothing is held (no object field, no held steps, no sphere within reach)."""
+    ``w_t``; ``demonstrated`` the same clearance with the demonstration's object in place of the scene's
+    (:meth:`inference.clearance.HandClearance.with_object`), where they differ: the rows and targets are
+    taken from it. None where nothing is held (no object field, no held steps, no sphere within reach)."""
     object_only = getattr(clearance, "object_only", None)
     held = params.contact_steps(traj.grasp_type)
     if object_only is None or held == 0:
         return None
     margins_of = object_only(_EXACT_M)
-    if margins_of is None:
+    source = margins_of if demonstrated is None else demonstrated.object_only(_EXACT_M)
+    if margins_of is None or source is None:
         return None
     n, reach = traj.num_steps, params.contact_reach_mm * 1e-3
     T_world_object = np.asarray(T_world_object, dtype=float)
@@ -84,7 +94,7 @@ def contact_plan(
     if not len(last):
         return None
     W = T_world_object @ np.asarray(traj.T_object_wrist)[last]
-    margins = margins_of(T_world_object, W, np.asarray(traj.joints)[last])[:, : margins_of.n_spheres]
+    margins = source(T_world_object, W, np.asarray(traj.joints)[last])[:, : source.n_spheres]
     steps, rows, targets = [], [], []
     for k, t in enumerate(last):
         near = np.flatnonzero(margins[k] < reach)

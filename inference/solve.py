@@ -60,6 +60,7 @@ def solve(
     fingertip_map: FingertipMap | None = None,
     joint_limits: np.ndarray | None = None,
     on_iteration: Callable[[float], None] | None = None,
+    demonstrated: ClearanceFn | None = None,
 ) -> VariationModel:
     """Build the graph, solve it, and return the marginals P(X_t | O) as a :class:`VariationModel`.
 
@@ -74,6 +75,9 @@ def solve(
             held by expectation propagation (:mod:`inference.joint_limits`); None: none, and the means may
             leave the limits.
         on_iteration: called after every optimizer iteration with the graph's error (progress reports).
+        demonstrated: ``clearance`` with the trajectory's own object in place of the scene's, where the
+            scene grasps another object: the held contacts are the demonstrated ones
+            (:func:`inference.contact.contact_plan`).
 
     Raises:
         InputError: invalid object prior or a covariance that is not positive definite.
@@ -94,7 +98,7 @@ def solve(
     constrained = range(n) if clearance is not None else ()
 
     base = build_graph(traj, params, cov_f1, mu_o, None, clearance, constrained, fixed_object=True)
-    contacts = contact_plan(traj, params, clearance, mu_o, scene_weight)
+    contacts = contact_plan(traj, params, clearance, mu_o, scene_weight, demonstrated)
     if contacts is not None:  # the demonstrated contacts held at the grasp (inference.contact)
         for f in contact_factors(contacts, key_o(), [(key_w(t), key_j(t)) for t in range(n)], mu_o):
             base.add(f)

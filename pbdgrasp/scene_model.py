@@ -7,7 +7,9 @@ as P(O), the SAH's joint limits, and clearance factors on the SAH's sphere cover
 ``params.precision_object_clearance_mm`` or ``params.power_object_clearance_mm`` from the grasped object,
 by the trajectory's grasp type (our addition: the paper constrains the environment; without the object the
 smoothing pulls the last steps' fingers into it) and
-``params.self_clearance_mm`` between the phalanges of different fingers. The CLI (``infer``, ``inspect``),
+``params.self_clearance_mm`` between the phalanges of different fingers. A strategy carried to another
+object (the chips strategy on the bottle) holds the contacts it demonstrated on its own object
+(:mod:`inference.contact`). The CLI (``infer``, ``inspect``),
 the Table I runner and the bench build scene models through here.
 """
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
+import assets
 from assets.sah import JOINT_LIMITS, rest_joints
 from assets.sphere_cover import hand_sphere_cover
 from inference.clearance import HandClearance
@@ -24,7 +27,7 @@ from inference.model import VariationModel
 from inference.params import VariationParams
 from inference.solve import solve
 from planning.scene import Scene
-from planning.scene_fields import scene_fields
+from planning.scene_fields import mesh_field, scene_fields
 from retarget.trajectory import Trajectory
 
 __all__ = ["scene_clearance", "learn_in_scene"]
@@ -70,12 +73,17 @@ def learn_in_scene(
     """The variation model of ``traj`` in ``scene`` (module docstring); ``on_iteration`` as
     :func:`inference.solve.solve`'s."""
     params = params or VariationParams()
+    clearance = scene_clearance(scene, params, cache_dir, grasp_type=traj.grasp_type)
+    demonstrated = None
+    if traj.object != scene.object.name and traj.object in assets.objects():  # a strategy carried over
+        demonstrated = clearance.with_object(mesh_field(assets.object_mesh(traj.object), 1.0, cache_dir))
     return solve(
         traj,
         params,
         T_world_object=scene.T_world_object,
         cov_object=scene.cov_object,
-        clearance=scene_clearance(scene, params, cache_dir, grasp_type=traj.grasp_type),
+        clearance=clearance,
         joint_limits=JOINT_LIMITS,
         on_iteration=on_iteration,
+        demonstrated=demonstrated,
     )

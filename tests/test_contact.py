@@ -83,6 +83,37 @@ def test_rows_are_the_spheres_of_tau_r_within_reach_of_the_object(make_traj):
     assert power is not None and 7 in power.steps and power.steps.min() >= 0
 
 
+def test_a_strategy_on_another_object_holds_the_contacts_it_demonstrated(make_traj):
+    """The scene's object a smaller ball than the demonstration's, at the same centre: the rows and targets
+    are tau_r's margins to the demonstrated ball, the factors' margins those to the scene's ball, so the
+    solved hand touches the smaller ball as tau_r touched the larger one (chips' strategy on the bottle)."""
+    traj = make_traj(n=6, seed=4)
+    cover, big = _ball_beside(traj, 5, 0.004, radius_m=0.03)
+    small = SphereField(0.025, big.center_world_m)  # 5 mm smaller radius, as the bottle against the chips can
+    O = traj.T_world_object_mean
+    params = dataclasses.replace(PARAMS, precision_contact_steps=3)
+    scene_clearance = _clearance(cover, small)
+    demonstrated = scene_clearance.with_object(big)
+    assert demonstrated.object_field is big and scene_clearance.object_field is small
+    plan = contact_plan(traj, params, scene_clearance, O, np.zeros(6), demonstrated)
+    on_its_own = contact_plan(traj, params, _clearance(cover, big), O, np.zeros(6))
+    for a, b in zip(
+        (plan.steps, *plan.rows, *plan.targets_m),
+        (on_its_own.steps, *on_its_own.rows, *on_its_own.targets_m),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(a, b)
+    t, rows = plan.steps[-1], plan.rows[-1]
+    W = O @ traj.T_object_wrist[t]
+    held = plan.clearance(O, W[None], traj.joints[t][None])[0, rows]
+    np.testing.assert_allclose(held, _margins(cover, small, O, W, traj.joints[t])[rows], atol=1e-12)
+    # solved: the held spheres come about 5 mm nearer the smaller ball than tau_r is
+    model = solve(traj, params, clearance=scene_clearance, demonstrated=demonstrated)
+    W_solved = O @ model.T_object_wrist_mean[t]
+    moved = _margins(cover, small, O, W_solved, model.joints_mean[t])[rows]
+    assert np.median(_margins(cover, small, O, W, traj.joints[t])[rows] - moved) > 0.003
+
+
 @pytest.mark.parametrize("fixed", [False, True])
 def test_contact_factor_jacobians_match_numerical_through_o_w_and_j(make_traj, numerical_jacobian, fixed):
     traj = make_traj(n=3, seed=5)
