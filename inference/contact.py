@@ -10,10 +10,12 @@ covariance R_t" by a prior f_4t on C_t = phi(X_t). Here, at each of the last
 C_t is the margins to the grasped object (distance - object clearance - radius, as in
 :mod:`inference.clearance`) of the spheres that tau_r, placed at the scene's object pose, brings within
 ``params.contact_reach_mm`` of it; r_t is their values in tau_r clipped to ``[0, reach]`` (the
-demonstrated contact, outside the clearance), and ``R_t = (contact_std / (1 - w_t))^2 I`` with ``w_t``
-the scene's weight of :func:`inference.graph.configuration_weights`: where the scene makes the strategy
-move round an obstacle the demonstrated contacts give way, and at ``w_t >= MAX_WEIGHT`` they are not
-held at all. Without a scene or an object field there are none.
+demonstrated contact, outside the clearance), and ``R_t = contact_std^2 I``. A sphere that tau_r brings
+within ``params.contact_release_mm`` of the table's or an obstacle's clearance is not held: where the
+scene occupies the place of a demonstrated contact (the lying can's table under the wrap's fingers),
+that contact gives way to the scene, and the others still hold the hand to the object (three chips: the
+palm on the grasped can while the fingers leave the neighbours). Without a scene or an object field
+there are none.
 
 Where the scene's object is not the demonstration's (a strategy carried to a similar object: the chips
 strategy on the bottle), the rows and r_t are tau_r's margins to the *demonstrated* object placed at the
@@ -35,10 +37,7 @@ from .clearance import ClearanceFn
 from .factors import ClearanceBatch
 from .params import VariationParams
 
-__all__ = ["MAX_WEIGHT", "ContactPlan", "contact_plan", "contact_factors"]
-
-MAX_WEIGHT = 0.99
-"""Steps whose scene weight ``w_t`` is at least this hold no contacts."""
+__all__ = ["ContactPlan", "contact_plan", "contact_factors"]
 
 _EXACT_M = 0.2
 """[m] the contact rows' margins are exact, with Jacobians, up to this (far beyond any contact's reach)."""
@@ -72,13 +71,13 @@ def contact_plan(
     params: VariationParams,
     clearance: ClearanceFn | None,
     T_world_object: np.ndarray,
-    weight: np.ndarray,
     demonstrated: ClearanceFn | None = None,
 ) -> ContactPlan | None:
-    """The contacts of tau_r at ``T_world_object`` (4, 4) (module docstring); ``weight`` (T,) the scene's
-    ``w_t``; ``demonstrated`` the same clearance with the demonstration's object in place of the scene's
+    """The contacts of tau_r at ``T_world_object`` (4, 4) (module docstring); ``demonstrated`` the same
+    clearance with the demonstration's object in place of the scene's
     (:meth:`inference.clearance.HandClearance.with_object`), where they differ: the rows and targets are
-    taken from it. None where nothing is held (no object field, no held steps, no sphere within reach)."""
+    taken from it. None where nothing is held (no object field, no held steps, no sphere within reach).
+    A clearance without ``environment_only`` (no table, no obstacles) releases nothing."""
     object_only = getattr(clearance, "object_only", None)
     held = params.contact_steps(traj.grasp_type)
     if object_only is None or held == 0:
@@ -90,21 +89,25 @@ def contact_plan(
     n, reach = traj.num_steps, params.contact_reach_mm * 1e-3
     T_world_object = np.asarray(T_world_object, dtype=float)
     last = np.arange(max(0, n - held), n)
-    last = last[np.asarray(weight, dtype=float)[last] < MAX_WEIGHT]
-    if not len(last):
-        return None
     W = T_world_object @ np.asarray(traj.T_object_wrist)[last]
-    margins = source(T_world_object, W, np.asarray(traj.joints)[last])[:, : source.n_spheres]
+    J = np.asarray(traj.joints)[last]
+    margins = source(T_world_object, W, J)[:, : source.n_spheres]
+    free = np.ones_like(margins, dtype=bool)
+    environment = getattr(clearance, "environment_only", None)
+    if environment is not None:  # released where the scene is within contact_release_mm
+        release = params.contact_release_mm * 1e-3
+        env = environment().reaching(release)
+        free = env(T_world_object, W, J)[:, : env.n_spheres] > release
     steps, rows, targets = [], [], []
     for k, t in enumerate(last):
-        near = np.flatnonzero(margins[k] < reach)
+        near = np.flatnonzero((margins[k] < reach) & free[k])
         if len(near):
             steps.append(t)
             rows.append(near)
             targets.append(np.clip(margins[k, near], 0.0, reach))
     if not steps:
         return None
-    stds = params.contact_std_mm * 1e-3 / (1.0 - np.asarray(weight, dtype=float)[steps])
+    stds = np.full(len(steps), params.contact_std_mm * 1e-3)
     return ContactPlan(margins_of, np.array(steps), tuple(rows), tuple(targets), stds)
 
 

@@ -32,7 +32,8 @@ Every field has the paper's default (or a documented choice where the paper is s
     precision_contact_steps: 0            # the last steps that hold them, precision grasps (0: none)
     power_contact_steps: 15               # ... power grasps
     contact_reach_mm: 10.0                # spheres of tau_r this near the object (beyond its clearance) hold
-    contact_std_mm: 2.0                   # R_t = (contact_std / (1 - w_t))^2, w_t the scene's weight
+    contact_std_mm: 2.0                   # R_t = contact_std^2 I
+    contact_release_mm: 20.0              # but not a sphere this near the table's or an obstacle's clearance
     # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
     joint_limit_min_probability: 1.0e-4   # a joint whose marginal puts more beyond a limit gets a site
     joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
@@ -128,6 +129,7 @@ class VariationParams:
     power_contact_steps: int = 15
     contact_reach_mm: float = 10.0
     contact_std_mm: float = 2.0
+    contact_release_mm: float = 20.0
     joint_limit_min_probability: float = 1e-4
     joint_limit_damping: float = 0.5
     joint_limit_max_iterations: int = 50
@@ -183,6 +185,7 @@ class VariationParams:
                 raise InputError(f"{f.name}: expected a probability in (0, 1), found {value!r}")
             allow_zero = f.name in (
                 "joint_floor_std_deg",
+                "contact_release_mm",
                 "clearance_mm",
                 "precision_object_clearance_mm",
                 "power_object_clearance_mm",

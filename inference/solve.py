@@ -98,7 +98,7 @@ def solve(
     constrained = range(n) if clearance is not None else ()
 
     base = build_graph(traj, params, cov_f1, mu_o, None, clearance, constrained, fixed_object=True)
-    contacts = contact_plan(traj, params, clearance, mu_o, scene_weight, demonstrated)
+    contacts = contact_plan(traj, params, clearance, mu_o, demonstrated)
     if contacts is not None:  # the demonstrated contacts held at the grasp (inference.contact)
         for f in contact_factors(contacts, key_o(), [(key_w(t), key_j(t)) for t in range(n)], mu_o):
             base.add(f)

@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from assets.distance_fields import SphereField
+from assets.distance_fields import BoxField, SphereField
 from assets.errors import InputError
 from assets.se3 import se3_exp
 from assets.sphere_cover import hand_sphere_cover
@@ -47,16 +47,14 @@ def _clearance(cover, ball):
 
 def test_rows_are_the_spheres_of_tau_r_within_reach_of_the_object(make_traj):
     """The last ``precision_contact_steps`` steps, the spheres whose dense margin is below the reach, the
-    targets clipped to [0, reach], the std divided by 1 - w_t, and no rows where w_t >= 0.99."""
+    targets clipped to [0, reach], the std ``contact_std``."""
     traj = make_traj(n=8, seed=4)
     cover, ball = _ball_beside(traj, 7, 0.004)
     clearance, O = _clearance(cover, ball), traj.T_world_object_mean
-    weight = np.zeros(8)
-    weight[5], weight[6] = 1.0, 0.5
     params = dataclasses.replace(PARAMS, precision_contact_steps=4, contact_reach_mm=10.0, contact_std_mm=2.0)
-    plan = contact_plan(traj, params, clearance, O, weight)
+    plan = contact_plan(traj, params, clearance, O)
     expected_steps = []
-    for t in (4, 6, 7):  # the last four, less step 5 (w = 1)
+    for t in range(4, 8):  # the last four
         m = _margins(cover, ball, O, O @ traj.T_object_wrist[t], traj.joints[t])
         near = np.flatnonzero(m < 0.010)
         if len(near):
@@ -66,21 +64,49 @@ def test_rows_are_the_spheres_of_tau_r_within_reach_of_the_object(make_traj):
             np.testing.assert_allclose(plan.targets_m[k], np.clip(m[near], 0, 0.010), rtol=0, atol=1e-12)
     np.testing.assert_array_equal(plan.steps, expected_steps)
     assert 7 in expected_steps and plan.num_rows >= 1
-    np.testing.assert_allclose(plan.stds_m, [0.004 if t == 6 else 0.002 for t in expected_steps])
-    # nothing to hold: no object field, no steps, or every held step taken by the scene
-    assert contact_plan(traj, params, None, O, weight) is None
+    np.testing.assert_allclose(plan.stds_m, 0.002)
+    # nothing to hold: no object field, or no steps
+    assert contact_plan(traj, params, None, O) is None
     no_object = HandClearance(cover, (ball,), None, self_pairs=np.zeros((0, 2), dtype=int))
-    assert contact_plan(traj, params, no_object, O, weight) is None
-    assert (
-        contact_plan(traj, dataclasses.replace(params, precision_contact_steps=0), clearance, O, weight)
-        is None
-    )
-    assert contact_plan(traj, params, clearance, O, np.ones(8)) is None
+    assert contact_plan(traj, params, no_object, O) is None
+    assert contact_plan(traj, dataclasses.replace(params, precision_contact_steps=0), clearance, O) is None
     # by default the power grasps hold their last 15 steps, the precision grasps none
     default = VariationParams()
-    assert contact_plan(traj, default, clearance, O, np.zeros(8)) is None
-    power = contact_plan(dataclasses.replace(traj, grasp_type="power"), default, clearance, O, np.zeros(8))
+    assert contact_plan(traj, default, clearance, O) is None
+    power = contact_plan(dataclasses.replace(traj, grasp_type="power"), default, clearance, O)
     assert power is not None and 7 in power.steps and power.steps.min() >= 0
+
+
+def test_a_contact_where_the_scene_is_gives_way(make_traj):
+    """A table (a box) under tau_r's last hand, its top placed so that half the held spheres come within
+    ``contact_release_mm`` of its 10 mm clearance: exactly the spheres whose dense distance to the box is
+    beyond the release stay held (for a release of 20 mm and of 0)."""
+    traj = make_traj(n=4, seed=4)
+    cover, ball = _ball_beside(traj, 3, 0.004)
+    O = traj.T_world_object_mean
+    params = dataclasses.replace(PARAMS, precision_contact_steps=1, contact_reach_mm=10.0)
+    W, J = O @ traj.T_object_wrist[3], traj.joints[3]
+    centres = cover.centers(J) @ W[:3, :3].T + W[:3, 3]
+    held_all = contact_plan(traj, params, _clearance(cover, ball), O).rows[0]
+    bottoms = centres[held_all, 2] - cover.radii_m[held_all] - 0.010  # lowest point less the clearance
+    for release_mm in (20.0, 0.0):
+        top = np.median(bottoms) - release_mm * 1e-3
+        T_world_box = np.eye(4)
+        T_world_box[2, 3] = top - 0.05
+        box = BoxField(np.array([1.0, 1.0, 0.05]), T_world_box)
+        clearance = HandClearance(
+            cover,
+            (box,),
+            ball,
+            clearance_m=0.010,
+            object_clearance_m=OBJECT_CLEARANCE_M,
+            active_margin_m=0.005,
+        )
+        to_box = box.distance(centres)[0] - 0.010 - cover.radii_m
+        plan = contact_plan(traj, dataclasses.replace(params, contact_release_mm=release_mm), clearance, O)
+        kept = held_all[to_box[held_all] > release_mm * 1e-3]
+        assert 0 < len(kept) < len(held_all)
+        np.testing.assert_array_equal(plan.rows[0], kept)
 
 
 def test_a_strategy_on_another_object_holds_the_contacts_it_demonstrated(make_traj):
@@ -95,8 +121,8 @@ def test_a_strategy_on_another_object_holds_the_contacts_it_demonstrated(make_tr
     scene_clearance = _clearance(cover, small)
     demonstrated = scene_clearance.with_object(big)
     assert demonstrated.object_field is big and scene_clearance.object_field is small
-    plan = contact_plan(traj, params, scene_clearance, O, np.zeros(6), demonstrated)
-    on_its_own = contact_plan(traj, params, _clearance(cover, big), O, np.zeros(6))
+    plan = contact_plan(traj, params, scene_clearance, O, demonstrated)
+    on_its_own = contact_plan(traj, params, _clearance(cover, big), O)
     for a, b in zip(
         (plan.steps, *plan.rows, *plan.targets_m),
         (on_its_own.steps, *on_its_own.rows, *on_its_own.targets_m),
@@ -119,7 +145,7 @@ def test_contact_factor_jacobians_match_numerical_through_o_w_and_j(make_traj, n
     traj = make_traj(n=3, seed=5)
     cover, ball = _ball_beside(traj, 2, 0.002)
     O = traj.T_world_object_mean
-    plan = contact_plan(traj, PARAMS, _clearance(cover, ball), O, np.zeros(3))
+    plan = contact_plan(traj, PARAMS, _clearance(cover, ball), O)
     assert plan.num_rows >= 2
     steps = [(key_w(t), key_j(t)) for t in range(3)]
     factors = contact_factors(plan, None if fixed else 0, steps, O if fixed else None)
@@ -188,6 +214,7 @@ def test_a_held_contact_narrows_the_marginal_as_a_linear_gaussian_update(make_tr
         ("power_contact_steps", 2.5, "expected an integer >= 0"),
         ("contact_std_mm", 0.0, "expected a finite number > 0"),
         ("contact_reach_mm", float("nan"), "expected a finite number > 0"),
+        ("contact_release_mm", -1.0, "expected a finite number >= 0"),
     ],
 )
 def test_contact_parameters_are_checked(field, value, message):
