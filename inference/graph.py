@@ -63,8 +63,7 @@ def configuration_weights(
     T_world_object: np.ndarray,
 ) -> np.ndarray:
     """(T,) the scene's weight in [0, 1]: of the ``configuration`` map in Sigma_m(t) for ``fingertip_cov_map:
-    by_scene`` (:mod:`inference.params`), and how far the demonstrated contacts give way
-    (:mod:`inference.contact`): ``clip(-m_t / by_scene_depth_mm, 0, 1)``, then the largest over
+    by_scene`` (:mod:`inference.params`): ``clip(-m_t / by_scene_depth_mm, 0, 1)``, then the largest over
     ``by_scene_steps`` steps either side, with ``m_t`` [m] the smallest margin of tau_r(t) placed at
     ``T_world_object`` to the table and the obstacles (``clearance.environment_only()`` where the
     clearance has it, else all its rows). Zeros without a clearance."""
