@@ -90,9 +90,10 @@ def solve(
     cov_o = traj.cov_object if cov_object is None else cov_object
     cov_o = require_spd("cov_object", require_shape("cov_object", cov_o, (6, 6)))
     n = traj.num_steps
-    scene_weight = configuration_weights(traj, params, clearance, mu_o)  # zeros without a scene
-    by_scene = params.fingertip_cov_map == "by_scene"  # the scene chooses Sigma_m's map per step (params.py)
-    cov_f1 = factor_covariances(traj, params, fingertip_map, scene_weight if by_scene else None)
+    scene_weight = None  # by_scene: the scene chooses Sigma_m's map per step (params.py); zeros without one
+    if params.fingertip_cov_map == "by_scene":
+        scene_weight = configuration_weights(traj, params, clearance, mu_o)
+    cov_f1 = factor_covariances(traj, params, fingertip_map, scene_weight)
     sites = JointLimitSites(joint_limits, n, params)
     clearance_sites = ClearanceSites(clearance, n, mu_o, params)
     constrained = range(n) if clearance is not None else ()
