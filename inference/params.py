@@ -51,6 +51,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     # GTSAM's Levenberg-Marquardt (section VI: the optimizer relinearizes every factor per iteration)
     max_iterations: 100                   # per solve
     relative_error_tolerance: 1.0e-5      # converged when the error decreases relatively less than this
+    site_solve_tolerance: 1.0e-3          # ... the solves between site updates (the last: the above)
 
 Sigma_m in configuration space is built by :func:`inference.factors.modeling_covariance`: the fingertip
 covariance (12x12, 4 fingertips x 3) is mapped with the pseudo-inverse of the fingertip Jacobian
@@ -144,6 +145,7 @@ class VariationParams:
     clearance_site_tolerance: float = 0.1
     max_iterations: int = 100
     relative_error_tolerance: float = 1e-5
+    site_solve_tolerance: float = 1e-3
 
     def __post_init__(self):
         for f in dataclasses.fields(self):

@@ -7,10 +7,12 @@ smooth hinge with std ``constraint_std_mm``; its rows act only where a margin is
 graph is solved by GTSAM's Levenberg-Marquardt, which relinearizes every factor at each iteration, until
 the relative decrease of the error is below ``relative_error_tolerance`` (GTSAM's ``checkConvergence``)
 or ``max_iterations`` iterations. The joint limits then go to their expectation-propagation fixed point
-(:mod:`inference.joint_limits`), each update followed by a warm-started solve, and the marginals are
-taken at the converged point. With ``params.clearance_sites`` (off by default) the clearance rows get
-expectation-propagation sites in the same loop (:mod:`inference.clearance_sites`), so that the marginals,
-not only the means, clear the scene. What each choice changed when measured is in docs/method.md.
+(:mod:`inference.joint_limits`), each update followed by a warm-started solve; the solves ahead of an
+update stop at the looser ``site_solve_tolerance`` (the sites move the optimum anyway), the one after the
+last update goes on to ``relative_error_tolerance``, and the marginals are taken at that point. With
+``params.clearance_sites`` (off by default) the clearance rows get expectation-propagation sites in the
+same loop (:mod:`inference.clearance_sites`), so that the marginals, not only the means, clear the scene.
+What each choice changed when measured is in docs/method.md.
 """
 
 from __future__ import annotations
@@ -110,19 +112,26 @@ def solve(
 
     values = initial_values(traj, mu_o, fixed_object=True)
     graph = graph_at()
-    values, iterations, converged = optimize(graph, values, params, on_iteration=on_iteration)
+    ep = bool(sites or clearance_sites)
+    # ahead of expectation propagation the solves stop at the looser tolerance; the last one goes on
+    loose = max(params.relative_error_tolerance, params.site_solve_tolerance) if ep else None
+    values, iterations, converged = optimize(
+        graph, values, params, on_iteration=on_iteration, tolerance=loose
+    )
     stuck = None
     if clearance is not None and params.backward_sweep:
         stuck = penetrating_steps(clearance, mu_o, values, n)
     if stuck is not None and stuck.any():  # a start from the grasp backwards (inference.sweep)
         sweep_start = backward_sweep(traj, params, cov_f1, mu_o, clearance, values)
-        swept, its, swept_converged = optimize(graph, sweep_start, params, on_iteration=on_iteration)
+        swept, its, swept_converged = optimize(
+            graph, sweep_start, params, on_iteration=on_iteration, tolerance=loose
+        )
         iterations += its
         fewer = int(penetrating_steps(clearance, mu_o, swept, n).sum())
         log.info("solve: %d steps penetrate from tau_r, %d from the backward sweep", stuck.sum(), fewer)
         if fewer < stuck.sum():
             values, converged = swept, swept_converged
-    if sites or clearance_sites:  # expectation propagation, each update followed by a warm-started solve
+    if ep:  # expectation propagation, each update followed by a warm-started solve
         for _ in range(params.joint_limit_max_iterations):
             change_j = change_c = 0.0
             if clearance_sites:
@@ -133,15 +142,21 @@ def solve(
             else:
                 change_j = sites.update(graph, values)
             graph = graph_at()
-            values, its, converged = optimize(graph, values, params, warm=True, on_iteration=on_iteration)
+            values, its, converged = optimize(
+                graph, values, params, warm=True, on_iteration=on_iteration, tolerance=loose
+            )
             iterations += its
             if change_j < params.joint_limit_tolerance and change_c < params.clearance_site_tolerance:
                 break
         else:
-            converged = False
             log.warning(
                 "expectation propagation did not converge in %d updates", params.joint_limit_max_iterations
             )
+        ep_converged = converged and change_j < params.joint_limit_tolerance
+        ep_converged = ep_converged and change_c < params.clearance_site_tolerance
+        values, its, converged = optimize(graph, values, params, warm=True, on_iteration=on_iteration)
+        iterations += its
+        converged = converged and ep_converged
     if not converged:
         log.warning("the variation model's solve did not converge (%d iterations)", iterations)
 
@@ -169,9 +184,10 @@ def optimize(
     params: VariationParams,
     warm: bool = False,
     on_iteration: Callable[[float], None] | None = None,
+    tolerance: float | None = None,
 ) -> tuple[gtsam.Values, int, bool]:
     """GTSAM's Levenberg-Marquardt from ``values`` until the relative decrease of the error is below
-    ``params.relative_error_tolerance`` (or the error is zero).
+    ``tolerance`` (default ``params.relative_error_tolerance``; or the error is zero).
 
     With ``warm`` (a start next to the solution, after a joint-limit site update) Gauss-Newton steps are
     tried first, one error evaluation each; one that increases the error by more than the tolerance hands
@@ -181,6 +197,7 @@ def optimize(
         The solution, the iterations taken and whether it converged within ``params.max_iterations``.
     """
     report = on_iteration or (lambda _error: None)
+    tol = params.relative_error_tolerance if tolerance is None else tolerance
     iterations = 0
     if warm:
         gn = gtsam.GaussNewtonOptimizer(graph, values, gtsam.GaussNewtonParams())
@@ -192,16 +209,16 @@ def optimize(
             new_error = gn.error()
             report(new_error)
             if not new_error <= error:  # an increase (or NaN): back to the last point
-                if new_error - error <= params.relative_error_tolerance * error:
+                if new_error - error <= tol * error:
                     return previous, iterations, True  # at the minimum, up to the tolerance
                 values = previous  # LM from there
                 break
-            if gtsam.checkConvergence(params.relative_error_tolerance, 0.0, 0.0, error, new_error):
+            if gtsam.checkConvergence(tol, 0.0, 0.0, error, new_error):
                 return gtsam.Values(gn.values()), iterations, True
             error, values = new_error, gtsam.Values(gn.values())
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(params.max_iterations)
-    lm.setRelativeErrorTol(params.relative_error_tolerance)
+    lm.setRelativeErrorTol(tol)
     lm.setAbsoluteErrorTol(0.0)
     lm.setErrorTol(0.0)
     lm.setUseFixedLambdaFactor(False)  # Nielsen's lambda update: 30-40 % fewer error evaluations here
@@ -212,7 +229,7 @@ def optimize(
         iterations += 1
         new_error = optimizer.error()
         report(new_error)
-        if gtsam.checkConvergence(params.relative_error_tolerance, 0.0, 0.0, error, new_error):
+        if gtsam.checkConvergence(tol, 0.0, 0.0, error, new_error):
             return optimizer.values(), iterations, True
         error = new_error
     return optimizer.values(), iterations, False

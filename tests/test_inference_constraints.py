@@ -164,6 +164,29 @@ def test_joint_limits_keep_a_constraint_from_bending_a_joint_past_its_limit(make
     assert held.constrained.all()
 
 
+def test_loose_solves_between_site_updates_reach_the_tight_fixed_point(make_traj, planes):
+    """The solves between expectation-propagation updates stop at ``site_solve_tolerance``, the last one at
+    ``relative_error_tolerance``: the same joint-limit and constraint setting as above, solved with every
+    solve tight (``site_solve_tolerance`` = ``relative_error_tolerance``), gives the same means and
+    covariances to well within the tolerances, in fewer iterations."""
+    traj = make_traj(n=6, coupled=False, seed=3)
+    lo0, slope = -0.02, 0.1
+    clearance = planes(joint_rows=[(0, -slope, lo0 + 0.2 - 0.025 / slope)])
+    limits = np.tile([-10.0, 10.0], (13, 1))
+    limits[0, 0] = lo0
+    base = dict(sigma_m_std_config=np.linspace(0.01, 0.05, 19), relative_error_tolerance=1e-9)
+    tight = solve(
+        traj, VariationParams(**base, site_solve_tolerance=1e-9), clearance=clearance, joint_limits=limits
+    )
+    loose = solve(
+        traj, VariationParams(**base, site_solve_tolerance=1e-2), clearance=clearance, joint_limits=limits
+    )
+    assert tight.converged and loose.converged
+    assert loose.iterations < tight.iterations
+    np.testing.assert_allclose(loose.joints_mean, tight.joints_mean, atol=1e-4)
+    np.testing.assert_allclose(loose.cov, tight.cov, rtol=1e-3, atol=1e-9)
+
+
 @pytest.mark.parametrize(
     "limits, message",
     [
