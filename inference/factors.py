@@ -206,7 +206,9 @@ class ClearanceBatch:
     what is computed per call, never the values GTSAM sees.
 
     Args:
-        clearance: the margins, batched over leading axes (:class:`inference.clearance.HandClearance`).
+        clearance: ``(T_world_object, T_world_wrist, joints, jacobians) -> rows`` or ``(rows, H_O, H_W,
+            H_J)``, batched over leading axes: the margins (:class:`inference.clearance.HandClearance`) or
+            rows made from them (the hinges of :func:`clearance_factors`).
         steps: per step ``(key_w, key_j)``.
         key_o: the key of O, or None with ``T_world_object`` given (O fixed there).
     """
@@ -289,17 +291,25 @@ def clearance_factors(
         )
     noise = gtsam.noiseModel.Isotropic.Sigma(clearance.dim, float(std_m))
     fixed = T_world_object is not None
-    batch = ClearanceBatch(clearance, steps, None if fixed else key_o, T_world_object)
+
+    def hinged(T_world_object, T_world_wrist, joints, jacobians: bool = False):
+        """The hinge of every step's margins, and its Jacobians, in one vectorized evaluation."""
+        out = clearance(T_world_object, T_world_wrist, joints, jacobians=jacobians)
+        if not jacobians:
+            return clearance_error(out, smoothing_m)[0]
+        e, slope = clearance_error(out[0], smoothing_m)
+        return e, *(slope[..., None] * H for H in out[1:])
+
+    batch = ClearanceBatch(hinged, steps, None if fixed else key_o, T_world_object)
 
     def make(i: int) -> gtsam.CustomFactor:
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H) -> np.ndarray:
             if H is None:
-                return clearance_error(batch.evaluate(i, values, False), smoothing_m)[0]
-            margins, H_O, H_W, H_J = batch.evaluate(i, values, True)
-            e, slope = clearance_error(margins, smoothing_m)
+                return batch.evaluate(i, values, False)
+            e, H_O, H_W, H_J = batch.evaluate(i, values, True)
             blocks = (H_W, H_J) if fixed else (H_O, H_W, H_J)
             for k, block in enumerate(blocks):
-                H[k] = np.asfortranarray(slope[:, None] * block)
+                H[k] = np.asfortranarray(block)
             return e
 
         keys = list(batch.steps[i]) if fixed else [key_o, *batch.steps[i]]
