@@ -14,9 +14,9 @@ configuration near the paper's solution for the one whose *draws* close best:
   degrees, not choose another grasp. A candidate whose blended approach (below) collides anywhere (the
   retargeting's d6 check) is rejected, so tau_r stays collision-free.
 * **Objective**: the expected quality ``E[phi_o]`` of configurations drawn about the candidate, an
-  injected callable (:data:`ExpectedQuality`; :mod:`pbdgrasp.final_grasp` builds it from the pybullet
-  world, the hand closer and the strategy's last marginal, with common random numbers so that it is a
-  deterministic function of the candidate). A draw in collision scores 0, so the search trades a
+  injected callable (:data:`ExpectedQuality`; :class:`pbdgrasp.strategy.ExpectedQuality` builds it from
+  the pybullet world, the hand closer and the strategy's last marginal, with common random numbers so
+  that it is a deterministic function of the candidate). A draw in collision scores 0, so the search trades a
   stronger grasp against draws that penetrate the object.
 * **Search**: Rosenbrock's method (:mod:`retarget.rosenbrock`, as the per-step search) from ``x = 0``;
   the result is kept only if its expected quality is higher than the paper's solution's.
