@@ -132,6 +132,7 @@ def solve(
         if fewer < stuck.sum():
             values, converged = swept, swept_converged
     if ep:  # expectation propagation, each update followed by a warm-started solve
+        settled = False
         for _ in range(params.joint_limit_max_iterations):
             change_j = change_c = 0.0
             if clearance_sites:
@@ -146,17 +147,17 @@ def solve(
                 graph, values, params, warm=True, on_iteration=on_iteration, tolerance=loose
             )
             iterations += its
-            if change_j < params.joint_limit_tolerance and change_c < params.clearance_site_tolerance:
+            settled = change_j < params.joint_limit_tolerance and change_c < params.clearance_site_tolerance
+            if settled:
                 break
-        else:
+        if not settled:
             log.warning(
                 "expectation propagation did not converge in %d updates", params.joint_limit_max_iterations
             )
-        ep_converged = converged and change_j < params.joint_limit_tolerance
-        ep_converged = ep_converged and change_c < params.clearance_site_tolerance
+        loose_converged = converged
         values, its, converged = optimize(graph, values, params, warm=True, on_iteration=on_iteration)
         iterations += its
-        converged = converged and ep_converged
+        converged = converged and loose_converged and settled
     if not converged:
         log.warning("the variation model's solve did not converge (%d iterations)", iterations)
 
