@@ -21,6 +21,7 @@ import numpy as np
 
 from assets.errors import InputError
 from inference.model import VariationModel
+from planning.closing_pool import ClosingPool
 from planning.grasp_planner import GraspPlanner
 from planning.scene import Scene
 
@@ -110,9 +111,16 @@ class Inspection:
 
 
 def inspect_model(
-    model: VariationModel, scene: Scene, draws: int, rng: np.random.Generator, epsilon: float = 0.05
+    model: VariationModel,
+    scene: Scene,
+    draws: int,
+    rng: np.random.Generator,
+    epsilon: float = 0.05,
+    processes: int | None = None,
 ) -> Inspection:
-    """Measure ``model``'s marginals in ``scene`` (module docstring).
+    """Measure ``model``'s marginals in ``scene`` (module docstring); the last step's draws are closed on
+    ``processes`` processes (default: the machine's cores; :class:`~planning.closing_pool.ClosingPool`,
+    the same result on any number).
 
     Raises:
         InputError: ``draws`` below 1 or ``epsilon`` not in (0, 1).
@@ -121,7 +129,10 @@ def inspect_model(
         raise InputError(f"draws: expected at least 1, found {draws}")
     if not 0.0 < epsilon < 1.0:
         raise InputError(f"epsilon: expected a quality in (0, 1), found {epsilon}")
-    with GraspPlanner(scene, [model]) as planner:
+    with (
+        GraspPlanner(scene, [model]) as planner,
+        ClosingPool(scene, planner.closer.config, processes, world=planner.world) as closer,
+    ):
         world = planner.checker.world
         free, hits, links = [], {name: [] for name in HIT_KINDS}, []
         for t in range(model.num_steps):
@@ -141,7 +152,7 @@ def inspect_model(
             ranked = sorted(link_counts.items(), key=lambda kv: (-kv[1], kv[0]))
             links.append({link: n / draws for link, n in ranked})
         last = planner.draw_marginal(1, draws, rng)
-        grasps = [planner.quality(x)[1] for x in last]
+        grasps = closer.close_many(last)
     qualities = np.array([g.quality for g in grasps])
     last_free = ~np.array([g.in_collision for g in grasps])
     return Inspection(

@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from assets import sah
 from assets.q_layout import POSE, Q_DIM
 from assets.se3 import local, pose_from_q, q_from_pose, se3_exp
 from planning.autograsp import HandCloser
+from planning.closing_pool import ClosingPool
 from planning.scene import Scene
 from planning.world import World
 from retarget.demonstration import Demonstration
@@ -96,7 +98,9 @@ class ExpectedQuality:
     :data:`retarget.final_grasp.ExpectedQuality`.
 
     Args:
-        world: the pybullet world of the scene the strategy is retargeted in.
+        closer: closes and scores the draws in the scene the strategy is retargeted in: a
+            :class:`~planning.autograsp.HandCloser` or, on several cores, a
+            :class:`~planning.closing_pool.ClosingPool`.
         T_world_object, cov_object: the object's pose (4, 4) and its covariance (6, 6) in that scene.
         cov: (19, 19) the configuration's covariance about the candidate (the strategy's last marginal).
         n: draws per evaluation.
@@ -108,7 +112,7 @@ class ExpectedQuality:
 
     def __init__(
         self,
-        world: World,
+        closer: HandCloser | ClosingPool,
         T_world_object: np.ndarray,
         cov_object: np.ndarray,
         cov: np.ndarray,
@@ -116,7 +120,7 @@ class ExpectedQuality:
         rng: np.random.Generator,
         offset: np.ndarray | None = None,
     ):
-        self.closer = HandCloser(world)
+        self.closer = closer
         self.offset = np.zeros(Q_DIM) if offset is None else np.asarray(offset, dtype=float)
         self.T_world_object = np.asarray(T_world_object, dtype=float)
         L_object = np.linalg.cholesky(np.asarray(cov_object, dtype=float) + 1e-15 * np.eye(6))
@@ -139,7 +143,7 @@ class ExpectedQuality:
         self.evaluations += 1
         T_world_wrist, J = self.draws(T_object_wrist, joints)
         q = np.concatenate([q_from_pose(T_world_wrist), J], axis=-1)
-        return np.array([self.closer.close(x).quality for x in q])
+        return np.array([grasp.quality for grasp in self.closer.close_many(q)])
 
     def __call__(self, T_object_wrist: np.ndarray, joints: np.ndarray) -> float:
         return float(np.mean(self.qualities(T_object_wrist, joints)))
@@ -158,8 +162,12 @@ def retarget_in_scene(
     config: RetargetConfig | None = None,
     progress: bool = False,
     meta: dict | None = None,
+    processes: int | None = None,
 ) -> tuple[Trajectory, RetargetResult]:
     """Retarget ``demo`` with d6 checked in ``scene`` (None: no collision term), as a trajectory.
+
+    ``processes``: processes that close the refined final grasp's draws (default: the machine's cores;
+    :class:`~planning.closing_pool.ClosingPool`, the same result on any number).
 
     Returns:
         The trajectory (object prior and rate of the demonstration; ``meta`` plus the scene name, the
@@ -174,11 +182,16 @@ def retarget_in_scene(
         result = retarget_demonstration(demo, is_free=None, config=config, progress=progress)
         info = {}
     else:
-        with World(scene, hand="sah") as world:
+        refined = method == "refined"
+        with (
+            World(scene, hand="sah") as world,
+            # made first, so that its workers build their worlds while the fingertips are searched
+            ClosingPool(scene, world=world, processes=processes) if refined else nullcontext() as closer,
+        ):
             penetration = object_frame_penetration(world, scene.T_world_object)
             result = retarget_demonstration(demo, config=config, progress=progress, penetration=penetration)
-            if method == "refined":
-                result = _refine_final_grasp(demo, scene, world, result, config)
+            if refined:
+                result = _refine_final_grasp(demo, scene, world, closer, result, config)
             info = {"last_step": grasp_shape(world, scene.T_world_object, result.q[-1])}
     info["final_grasp_method"] = method
     result = RetargetResult(**{**result.__dict__, "meta": {**result.meta, **info}})
@@ -199,11 +212,16 @@ def _trajectory(demo: Demonstration, result: RetargetResult, meta: dict) -> Traj
 
 
 def _refine_final_grasp(
-    demo: Demonstration, scene: Scene, world: World, result: RetargetResult, config: RetargetConfig
+    demo: Demonstration,
+    scene: Scene,
+    world: World,
+    closer: ClosingPool,
+    result: RetargetResult,
+    config: RetargetConfig,
 ) -> RetargetResult:
     """The refined final grasp (:mod:`retarget.final_grasp`): the draws about a candidate come from the last
-    marginal of the paper's trajectory's variation model in ``scene`` (default parameters); a candidate's
-    blended steps must be collision-free."""
+    marginal of the paper's trajectory's variation model in ``scene`` (default parameters), closed by
+    ``closer``; a candidate's blended steps must be collision-free in ``world``."""
     from .scene_model import learn_in_scene
 
     start = time.perf_counter()
@@ -215,7 +233,7 @@ def _refine_final_grasp(
         model.joints_mean[-1] - result.joints[-1],
     ]
     score = ExpectedQuality(
-        world, scene.T_world_object, scene.cov_object, model.cov[-1], settings.draws, rng, offset
+        closer, scene.T_world_object, scene.cov_object, model.cov[-1], settings.draws, rng, offset
     )
     penetration = object_frame_penetration(world, scene.T_world_object)
 

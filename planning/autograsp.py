@@ -218,6 +218,11 @@ class HandCloser:
             quality, q, points, normals, tuple(links), False, steps, time.perf_counter() - t0, msg
         )
 
+    def close_many(self, qs: np.ndarray) -> list[GraspResult]:
+        """:meth:`close` at each row of ``qs`` (n, 19), in order; on several cores:
+        :class:`planning.closing_pool.ClosingPool`, which has the same method."""
+        return [self.close(q) for q in np.atleast_2d(np.asarray(qs, dtype=float))]
+
     def _link_distances(self) -> dict[int, float]:
         """The smallest signed distance [m] of each hand link to anything it has contact points with."""
         pb.performCollisionDetection(physicsClientId=self.client)

@@ -9,6 +9,7 @@ import pytest
 from assets import sah
 from assets import se3 as lie
 from assets.errors import InputError
+from planning.autograsp import HandCloser
 from retarget.final_grasp import (
     FLEXION_JOINTS,
     FinalGraspConfig,
@@ -160,12 +161,13 @@ def _ham_grasp_in_object(scene):
 
 def test_expected_quality_of_vanishing_draws_is_the_quality_at_the_configuration(ham_world):
     from pbdgrasp.strategy import ExpectedQuality
-    from planning.autograsp import HandCloser
 
     scene, world = ham_world
     T_object_wrist, joints = _ham_grasp_in_object(scene)
     tiny = 1e-18 * np.eye(19)
-    score = ExpectedQuality(world, scene.T_world_object, 1e-18 * np.eye(6), tiny, 3, np.random.default_rng(0))
+    score = ExpectedQuality(
+        HandCloser(world), scene.T_world_object, 1e-18 * np.eye(6), tiny, 3, np.random.default_rng(0)
+    )
     q_world = np.concatenate([lie.q_from_pose(scene.T_world_object @ T_object_wrist), joints])
     direct = HandCloser(world).close(q_world).quality
     assert direct > 0.1  # the hand-placed grasp (epsilon ~0.17)
@@ -186,7 +188,9 @@ def test_expected_quality_draws_follow_the_offset_and_the_covariances(ham_world)
     offset = np.r_[0.05, -0.02, 0.01, 0.01, -0.02, 0.03, np.full(13, 0.05)]
     n = 20_000
     tiny = 1e-18 * np.eye(6)
-    score = ExpectedQuality(world, scene.T_world_object, tiny, cov, n, np.random.default_rng(2), offset)
+    score = ExpectedQuality(
+        HandCloser(world), scene.T_world_object, tiny, cov, n, np.random.default_rng(2), offset
+    )
     T_world_wrist, q_joints = score.draws(T_object_wrist, joints)
     T_mean = scene.T_world_object @ T_object_wrist @ lie.se3_exp(offset[:6])
     xi = lie.se3_log(lie.se3_inverse(T_mean) @ T_world_wrist)
@@ -249,7 +253,9 @@ def test_the_ham_strategy_refined_closes_better_and_ends_where_its_blend_says():
     ]
     with World(scene) as world:
         rng = np.random.default_rng(settings.seed)
-        score = ExpectedQuality(world, scene.T_world_object, scene.cov_object, model.cov[-1], 12, rng, offset)
+        score = ExpectedQuality(
+            HandCloser(world), scene.T_world_object, scene.cov_object, model.cov[-1], 12, rng, offset
+        )
         before = score(paper.T_object_wrist[-1], paper.joints[-1])
         after = score(traj.T_object_wrist[-1], traj.joints[-1])
     assert before == pytest.approx(info["expected_quality_before"], abs=1e-9)

@@ -1,0 +1,151 @@
+"""Close-and-score many configurations of one scene on several cores.
+
+:class:`ClosingPool` splits a batch of configurations (n, 19) into contiguous chunks, one per process:
+this process closes the first chunk with its own :class:`~planning.autograsp.HandCloser` while worker
+processes (forks of this one, each building its own pybullet :class:`~planning.world.World` of the same
+scene; ``spawn`` where ``fork`` does not exist) close the others. A closing depends only on the
+configuration and the scene (pybullet keeps no state between queries that changes a result:
+``tests/test_closing_pool.py``), so the results are those of :meth:`HandCloser.close` one row at a time,
+in order, whatever the number of processes.
+
+The workers start when the pool is made and build their worlds in the background, so a caller that
+makes the pool before other work (the refined final grasp: before the fingertip search) does not wait
+for them. Inside a daemonic process (a Dask worker) no child may be started, and the pool closes
+everything in this process; likewise with ``processes=1``. A worker that dies is not retried: its chunk
+is closed here and the pool goes on without workers. BLAS should run on one thread (the CLI sees to
+it): otherwise its spinning threads take the workers' cores.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+import numpy as np
+
+from assets.errors import InputError
+from assets.q_layout import Q_DIM
+
+from .autograsp import AutoGraspConfig, GraspResult, HandCloser
+from .scene import Scene
+from .world import World
+
+__all__ = ["ClosingPool"]
+
+log = logging.getLogger(__name__)
+
+_WORKER: HandCloser | None = None  # a worker process's closer (its world lives as long as the process)
+
+
+def _init_worker(scene: Scene, config: AutoGraspConfig | None) -> None:
+    global _WORKER
+    _WORKER = HandCloser(World(scene, hand="sah"), config)
+
+
+def _ready() -> bool:
+    return _WORKER is not None
+
+
+def _close_chunk(qs: np.ndarray) -> list[GraspResult]:
+    return [_WORKER.close(q) for q in qs]
+
+
+def _context():
+    """``fork``: a worker starts in milliseconds and never re-runs the caller's script (``spawn`` imports
+    ``__main__`` again, which runs an unguarded script's body in the worker). The worker touches neither
+    this process's pybullet client nor GTSAM, only its own world."""
+    methods = multiprocessing.get_all_start_methods()
+    return multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+
+
+class ClosingPool:
+    """:meth:`HandCloser.close` over a batch on ``processes`` processes (module docstring).
+
+    Args:
+        scene: the scene every process closes the hand in.
+        config: the closing and quality settings (default :class:`AutoGraspConfig`).
+        processes: processes in all, this one included (default: the machine's cores); 1 closes in this
+            process only.
+        world: this process's world of ``scene`` (default: one of its own, closed with the pool).
+
+    Raises:
+        InputError: ``processes`` < 1.
+
+    Use it as a context manager, or call :meth:`close`, to stop the workers.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        config: AutoGraspConfig | None = None,
+        processes: int | None = None,
+        world: World | None = None,
+    ):
+        processes = (os.cpu_count() or 1) if processes is None else int(processes)
+        if processes < 1:
+            raise InputError(f"ClosingPool: processes must be >= 1, found {processes}")
+        if multiprocessing.current_process().daemon:
+            processes = 1  # a daemonic process may not have children
+        self._own_world = world is None
+        self._world = World(scene, hand="sah") if world is None else world
+        self._closer = HandCloser(self._world, config)
+        self._pool: ProcessPoolExecutor | None = None
+        if processes > 1:
+            self._pool = ProcessPoolExecutor(
+                processes - 1,
+                mp_context=_context(),
+                initializer=_init_worker,
+                initargs=(scene, config),
+            )
+            for _ in range(processes - 1):
+                self._pool.submit(_ready)  # start the workers now: they build their worlds meanwhile
+        self.processes = processes
+
+    def close_many(self, qs: np.ndarray) -> list[GraspResult]:
+        """The closed and scored grasps at each row of ``qs`` (n, 19) [m, rad], in order.
+
+        Raises:
+            InputError: ``qs`` not (n, 19), or a row that :meth:`HandCloser.close` refuses.
+        """
+        qs = np.asarray(qs, dtype=float)
+        if qs.ndim != 2 or qs.shape[1] != Q_DIM:
+            raise InputError(f"close_many: expected (n, {Q_DIM}) configurations, found shape {qs.shape}")
+        chunks = np.array_split(qs, self.processes) if self._pool is not None else [qs]
+        remote: list[Future] = []
+        for chunk in chunks[1:]:
+            remote.append(self._submit(chunk))
+        out = [self._closer.close(q) for q in chunks[0]]
+        for chunk, job in zip(chunks[1:], remote, strict=True):
+            out += self._result(job, chunk)
+        return out
+
+    def _submit(self, chunk: np.ndarray) -> Future | None:
+        try:
+            return self._pool.submit(_close_chunk, chunk)
+        except (BrokenProcessPool, RuntimeError):  # already broken or shut down
+            return None
+
+    def _result(self, job: Future | None, chunk: np.ndarray) -> list[GraspResult]:
+        if job is not None:
+            try:
+                return job.result()
+            except BrokenProcessPool:
+                log.warning("a closing worker died; closing its configurations in this process")
+        return [self._closer.close(q) for q in chunk]
+
+    def close(self) -> None:
+        """Stop the workers and close the pool's own world (not one the caller passed)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self._own_world:
+            self._world.close()
+
+    def __enter__(self) -> ClosingPool:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
