@@ -6,11 +6,15 @@ depths of a hand trajectory in a scene.
 approach that ends at a hand-placed grasp of the ham can (``pbdgrasp.bench_fixtures.HAM_GRASP_Q``,
 epsilon ~0.17): 15 cm above the grasp with the hand open, a minimum-jerk descent, the fingers pre-shaped
 on the way; planner tests need neither a demonstration nor retargeting.
+
+BLAS runs on one thread, as in the ``pbdgrasp`` command (:mod:`pbdgrasp.cli`).
 """
 
 import gtsam
 import numpy as np
 import pytest
+import scipy.linalg  # noqa: F401 - loads scipy's BLAS, so that the limit below reaches it too
+from threadpoolctl import threadpool_limits
 
 from assets import sah
 from assets.se3 import pose_from_q, q_from_pose, se3_exp, se3_inverse
@@ -19,6 +23,8 @@ from pbdgrasp import bench_fixtures as bench
 from planning.scene import load_scene
 from planning.world import World
 from retarget.trajectory import Trajectory
+
+threadpool_limits(limits=1, user_api="blas")
 
 H_STEP = 1e-6  # [rad, m] the numerical Jacobians' central-difference step
 

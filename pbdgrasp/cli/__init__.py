@@ -8,6 +8,10 @@ Errors: bad input (:class:`assets.errors.InputError`) prints one line ``error: .
 argument errors, which include every range check and output-path check of :mod:`pbdgrasp.cli._args`
 (made while parsing, before any work). ``--debug`` shows the traceback instead. A reader that closes the
 output early (``pbdgrasp assets | head -1``) ends the command quietly with status 141, as SIGPIPE would.
+
+Every command runs BLAS (OpenBLAS under numpy and scipy) on one thread: its matrices are small, and the
+extra threads only spin-wait on the core that pybullet's closings, a
+:class:`~planning.closing_pool.ClosingPool`'s worker or a Dask worker needs (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ import logging
 import os
 import pkgutil
 import sys
+
+from threadpoolctl import threadpool_limits
 
 from assets.errors import InputError
 
@@ -67,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    threadpool_limits(limits=1, user_api="blas")
     try:
         status = int(args._run(args) or 0)
         sys.stdout.flush()  # inside the try: a reader gone is caught here, not at the interpreter's exit
