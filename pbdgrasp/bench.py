@@ -45,6 +45,7 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.q_layout import Q_DIM
+from planning.closing_pool import MAX_DEFAULT_PROCESSES
 
 from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
 from .bench_planning import PLANNING_SCENES, bench_planning
@@ -314,7 +315,8 @@ def bench_retargeting(
     """Seconds per step of retargeting a demonstration as a Table I build does it (:func:`retarget_in_scene`,
     d6 with the penetration depth): all its steps, or its first ``num_steps`` (the quick bench). The per-step
     search (``s_per_step``) and the refined final grasp, once per demonstration (``final_grasp_s``), are
-    timed apart; ``total_s`` is both."""
+    timed apart; ``total_s`` is both; ``closing_processes``: the processes that close the final grasp's
+    draws (:class:`~planning.closing_pool.ClosingPool`'s default)."""
     from pbdgrasp.strategy import retarget_in_scene
     from planning.scene import load_scene
     from retarget.demonstration import Demonstration
@@ -335,6 +337,7 @@ def bench_retargeting(
         "max_nfev": config.max_nfev,
         "s_per_step": (dt - final_s) / n,
         "final_grasp_s": final_s,
+        "closing_processes": min(os.cpu_count() or 1, MAX_DEFAULT_PROCESSES),
         "total_s": dt,
         "mean_nfev": float(np.mean(res.nfev)),
         "collision_checks": int(np.sum(res.n_collision_checks)),

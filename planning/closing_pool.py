@@ -33,9 +33,13 @@ from .autograsp import AutoGraspConfig, GraspResult, HandCloser
 from .scene import Scene
 from .world import World
 
-__all__ = ["ClosingPool"]
+__all__ = ["ClosingPool", "MAX_DEFAULT_PROCESSES"]
 
 log = logging.getLogger(__name__)
+
+MAX_DEFAULT_PROCESSES = 8
+"""The default number of processes is the machine's cores, at most this many (each worker holds a world,
+and a batch of 32 draws gains little from more)."""
 
 _WORKER: HandCloser | None = None  # a worker process's closer (its world lives as long as the process)
 
@@ -67,8 +71,8 @@ class ClosingPool:
     Args:
         scene: the scene every process closes the hand in.
         config: the closing and quality settings (default :class:`AutoGraspConfig`).
-        processes: processes in all, this one included (default: the machine's cores); 1 closes in this
-            process only.
+        processes: processes in all, this one included (default: the machine's cores, at most
+            :data:`MAX_DEFAULT_PROCESSES`); 1 closes in this process only.
         world: this process's world of ``scene`` (default: one of its own, closed with the pool).
 
     Raises:
@@ -84,7 +88,9 @@ class ClosingPool:
         processes: int | None = None,
         world: World | None = None,
     ):
-        processes = (os.cpu_count() or 1) if processes is None else int(processes)
+        if processes is None:
+            processes = min(os.cpu_count() or 1, MAX_DEFAULT_PROCESSES)
+        processes = int(processes)
         if processes < 1:
             raise InputError(f"ClosingPool: processes must be >= 1, found {processes}")
         if multiprocessing.current_process().daemon:
