@@ -124,7 +124,7 @@ def format_table(r: dict) -> str:
     rt = r["retargeting"]
     lines.append(
         f"retargeting: {rt['s_per_step']:.2f} s/step, final grasp {rt['final_grasp_s']:.1f} s "
-        f"(draws closed on {rt['closing_processes']} processes) "
+        f"on {rt['closing_processes']} processes "
         f"({rt['total_s']:.1f} s for {rt['steps']} steps of {rt['demonstration']}, "
         f"max_nfev {rt['max_nfev']}, {rt['collision_checks']} collision checks)"
     )
