@@ -12,8 +12,9 @@ The workers start when the pool is made and build their worlds in the background
 makes the pool before other work (the refined final grasp: before the fingertip search) does not wait
 for them. Inside a daemonic process (a Dask worker) no child may be started, and the pool closes
 everything in this process; likewise with ``processes=1``. A worker that dies is not retried: its chunk
-is closed here and the pool goes on without workers. BLAS should run on one thread (the CLI sees to
-it): otherwise its spinning threads take the workers' cores.
+is closed here and the pool goes on without workers. Workers ignore Ctrl-C: the caller is interrupted,
+and leaving the pool stops them. BLAS should run on one thread (the CLI sees to it): otherwise its
+spinning threads take the workers' cores.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -46,6 +48,7 @@ _WORKER: HandCloser | None = None  # a worker process's closer (its world lives 
 
 def _init_worker(scene: Scene, config: AutoGraspConfig | None) -> None:
     global _WORKER
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is this process's parent's to handle
     _WORKER = HandCloser(World(scene, hand="sah"), config)
 
 

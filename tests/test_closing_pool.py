@@ -3,6 +3,10 @@ one at a time (a second implementation of the batch: the plain loop in a fresh w
 
 from __future__ import annotations
 
+import os
+import signal
+import time
+
 import numpy as np
 import pytest
 
@@ -54,6 +58,19 @@ def test_pool_closes_here_when_its_workers_are_gone(ham):
             pool._pool.shutdown(wait=True)  # as after a worker's death: the chunks are closed here
             _assert_same(pool.close_many(qs), expected)
         assert HandCloser(world).close(qs[0]).quality == expected[0].quality  # the caller's world stays open
+
+
+def test_a_worker_ignores_ctrl_c(ham):
+    """Ctrl-C reaches the whole process group: the caller handles it; the workers go on to the pool's end."""
+    scene, qs, expected = ham
+    with ClosingPool(scene, processes=2) as pool:
+        pool.close_many(qs[:2])  # the worker is up
+        workers = list(pool._pool._processes.values())
+        for proc in workers:
+            os.kill(proc.pid, signal.SIGINT)
+        time.sleep(0.3)
+        assert all(proc.is_alive() for proc in workers)
+        _assert_same(pool.close_many(qs), expected)
 
 
 def test_pool_refuses_bad_input(ham):
