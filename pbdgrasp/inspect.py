@@ -21,6 +21,7 @@ import numpy as np
 
 from assets.errors import InputError
 from inference.model import VariationModel
+from planning.autograsp import HandCloser
 from planning.closing_pool import ClosingPool
 from planning.grasp_planner import GraspPlanner
 from planning.scene import Scene
@@ -131,28 +132,27 @@ def inspect_model(
         raise InputError(f"epsilon: expected a quality in (0, 1), found {epsilon}")
     with (
         GraspPlanner(scene, [model]) as planner,
-        ClosingPool(scene, planner.closer.config, processes, world=planner.world) as closer,
+        ClosingPool(scene, planner.closer.config, processes, world=planner.world) as pool,
     ):
-        world = planner.checker.world
-        free, hits, links = [], {name: [] for name in HIT_KINDS}, []
-        for t in range(model.num_steps):
-            q = planner.draw_marginal(None, draws, rng, k=t)
-            is_free = np.array([planner.checker.is_free(x) for x in q])
-            counts = dict.fromkeys(HIT_KINDS, 0)
-            link_counts: dict[str, int] = {}
-            for x in q[~is_free]:
-                inside = [c for c in world.hand_contacts(x) if c.distance_m < 0]
-                for kind in {_kind(c.other, scene) for c in inside}:
-                    counts[kind] += 1
-                for link in {c.link for c in inside}:
-                    link_counts[link] = link_counts.get(link, 0) + 1
-            free.append(float(is_free.mean()))
-            for name in HIT_KINDS:
-                hits[name].append(counts[name] / draws)
-            ranked = sorted(link_counts.items(), key=lambda kv: (-kv[1], kv[0]))
-            links.append({link: n / draws for link, n in ranked})
+        q = np.concatenate([planner.draw_marginal(None, draws, rng, k=t) for t in range(model.num_steps)])
+        checked = pool.map_rows(_penetrations, q)
         last = planner.draw_marginal(1, draws, rng)
-        grasps = closer.close_many(last)
+        grasps = pool.close_many(last)
+    free, hits, links = [], {name: [] for name in HIT_KINDS}, []
+    for t in range(model.num_steps):
+        step = checked[t * draws : (t + 1) * draws]
+        counts = dict.fromkeys(HIT_KINDS, 0)
+        link_counts: dict[str, int] = {}
+        for _, kinds, inside in step:
+            for kind in kinds:
+                counts[kind] += 1
+            for link in inside:
+                link_counts[link] = link_counts.get(link, 0) + 1
+        free.append(float(np.mean([is_free for is_free, _, _ in step])))
+        for name in HIT_KINDS:
+            hits[name].append(counts[name] / draws)
+        ranked = sorted(link_counts.items(), key=lambda kv: (-kv[1], kv[0]))
+        links.append({link: n / draws for link, n in ranked})
     qualities = np.array([g.quality for g in grasps])
     last_free = ~np.array([g.in_collision for g in grasps])
     return Inspection(
@@ -176,6 +176,20 @@ def inspect_model(
 def _top_links(links: dict[str, float], n: int = 3) -> str:
     """``'links inside: a 24%, b 20%, c 18%'`` for the ``n`` most frequent of ``links`` (not empty)."""
     return "links inside: " + ", ".join(f"{link} {f:.0%}" for link, f in list(links.items())[:n])
+
+
+def _penetrations(closer: HandCloser, rows: np.ndarray) -> list[tuple[bool, set[str], set[str]]]:
+    """Per configuration: collision-free, and else which :data:`HIT_KINDS` and which links penetrate (a
+    :data:`planning.closing_pool.RowsFn`)."""
+    world = closer.world
+    out = []
+    for x in rows:
+        if world.is_free(x):
+            out.append((True, set(), set()))
+            continue
+        inside = [c for c in world.hand_contacts(x) if c.distance_m < 0]
+        out.append((False, {_kind(c.other, world.scene) for c in inside}, {c.link for c in inside}))
+    return out
 
 
 def _kind(other: str, scene: Scene) -> str:

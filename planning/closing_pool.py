@@ -23,6 +23,7 @@ import logging
 import multiprocessing
 import os
 import signal
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
@@ -35,13 +36,17 @@ from .autograsp import AutoGraspConfig, GraspResult, HandCloser
 from .scene import Scene
 from .world import World
 
-__all__ = ["ClosingPool", "MAX_DEFAULT_PROCESSES"]
+__all__ = ["ClosingPool", "MAX_DEFAULT_PROCESSES", "RowsFn", "close_rows"]
 
 log = logging.getLogger(__name__)
 
 MAX_DEFAULT_PROCESSES = 8
 """The default number of processes is the machine's cores, at most this many (each worker holds a world,
 and a batch of 32 draws gains little from more)."""
+
+RowsFn = Callable[[HandCloser, np.ndarray], list]
+"""``fn(closer, rows (m, 19)) -> list`` of m results, one per row, that depend on the row and the scene only
+(the closer's world is this process's or a worker's). A module-level function: workers get it by name."""
 
 _WORKER: HandCloser | None = None  # a worker process's closer (its world lives as long as the process)
 
@@ -56,8 +61,13 @@ def _ready() -> bool:
     return _WORKER is not None
 
 
-def _close_chunk(qs: np.ndarray) -> list[GraspResult]:
-    return [_WORKER.close(q) for q in qs]
+def _run_chunk(fn: RowsFn, qs: np.ndarray) -> list:
+    return fn(_WORKER, qs)
+
+
+def close_rows(closer: HandCloser, qs: np.ndarray) -> list[GraspResult]:
+    """:meth:`HandCloser.close` at each row of ``qs`` (:meth:`ClosingPool.close_many`'s :data:`RowsFn`)."""
+    return [closer.close(q) for q in qs]
 
 
 def _context():
@@ -69,7 +79,8 @@ def _context():
 
 
 class ClosingPool:
-    """:meth:`HandCloser.close` over a batch on ``processes`` processes (module docstring).
+    """:meth:`HandCloser.close` (or any :data:`RowsFn`) over a batch on ``processes`` processes (module
+    docstring).
 
     Args:
         scene: the scene every process closes the hand in.
@@ -119,31 +130,37 @@ class ClosingPool:
         Raises:
             InputError: ``qs`` not (n, 19), or a row that :meth:`HandCloser.close` refuses.
         """
+        return self.map_rows(close_rows, qs)
+
+    def map_rows(self, fn: RowsFn, qs: np.ndarray) -> list:
+        """``fn`` over contiguous chunks of ``qs`` (n, 19), one per process; the n results in order.
+
+        Raises:
+            InputError: ``qs`` not (n, 19), and whatever ``fn`` raises.
+        """
         qs = np.asarray(qs, dtype=float)
         if qs.ndim != 2 or qs.shape[1] != Q_DIM:
-            raise InputError(f"close_many: expected (n, {Q_DIM}) configurations, found shape {qs.shape}")
+            raise InputError(f"expected (n, {Q_DIM}) configurations, found shape {qs.shape}")
         chunks = np.array_split(qs, self.processes) if self._pool is not None else [qs]
-        remote: list[Future] = []
-        for chunk in chunks[1:]:
-            remote.append(self._submit(chunk))
-        out = [self._closer.close(q) for q in chunks[0]]
+        remote = [self._submit(fn, chunk) for chunk in chunks[1:]]
+        out = list(fn(self._closer, chunks[0]))
         for chunk, job in zip(chunks[1:], remote, strict=True):
-            out += self._result(job, chunk)
+            out += self._result(job, fn, chunk)
         return out
 
-    def _submit(self, chunk: np.ndarray) -> Future | None:
+    def _submit(self, fn: RowsFn, chunk: np.ndarray) -> Future | None:
         try:
-            return self._pool.submit(_close_chunk, chunk)
+            return self._pool.submit(_run_chunk, fn, chunk)
         except (BrokenProcessPool, RuntimeError):  # already broken or shut down
             return None
 
-    def _result(self, job: Future | None, chunk: np.ndarray) -> list[GraspResult]:
+    def _result(self, job: Future | None, fn: RowsFn, chunk: np.ndarray) -> list:
         if job is not None:
             try:
                 return job.result()
             except BrokenProcessPool:
-                log.warning("a closing worker died; closing its configurations in this process")
-        return [self._closer.close(q) for q in chunk]
+                log.warning("a pool worker died; its configurations are done in this process")
+        return fn(self._closer, chunk)
 
     def close(self) -> None:
         """Stop the workers and close the pool's own world (not one the caller passed)."""
