@@ -51,6 +51,20 @@ def test_pool_closes_as_one_closer_does(ham, processes):
         _assert_same(pool.close_many(qs[:1]), expected[:1])  # fewer rows than processes
 
 
+def _free_and_deepest(closer, rows):
+    world = closer.world
+    return [(world.is_free(q), world.penetration_m(q)) for q in rows]
+
+
+def test_map_rows_runs_any_function_of_the_rows_in_order(ham):
+    scene, qs, _ = ham
+    with World(scene) as world:
+        expected = _free_and_deepest(HandCloser(world), qs)
+    with ClosingPool(scene, processes=2) as pool:
+        assert pool.map_rows(_free_and_deepest, qs) == expected
+    assert any(free for free, _ in expected) and not all(free for free, _ in expected)
+
+
 def test_pool_closes_here_when_its_workers_are_gone(ham):
     scene, qs, expected = ham
     with World(scene) as world:
