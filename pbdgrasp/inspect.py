@@ -3,11 +3,12 @@ and how many of the last step's close to a valid grasp.
 
 :func:`inspect_model` draws ``n`` configurations per step from P(X_t | O) with O ~ P(O) (the planner's
 draws, :meth:`planning.grasp_planner.GraspPlanner.draw_marginal`, joints clipped to the SAH's limits),
-checks each with the planner's collision checker (pybullet: every link against the table, the object, the
+checks each for collisions as the planner does (pybullet: every link against the table, the object, the
 obstacles and the hand itself; for the colliding ones, which of them it penetrates and with which links),
 and closes the hand at each of the last step's draws (GraspIt!'s autograsp and the L1 epsilon quality,
 :mod:`planning.autograsp`): the valid fraction of all of them and of the free ones tells a weak grasp from
-draws that collide. The model is placed in the scene's object pose, as the planner places it.
+draws that collide. The model is placed in the scene's object pose, as the planner places it. The checks
+and closings run on every core (:class:`planning.closing_pool.ClosingPool`), with the same result.
 """
 
 from __future__ import annotations
