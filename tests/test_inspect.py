@@ -90,6 +90,9 @@ def test_cli_json_plot_and_a_bad_draw_count(point_model, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert len(out["free_fraction"]) == STEPS and set(out["hits"]) == {"object", "environment", "self"}
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for processes in ("1", "3"):  # the same measurements on any number of processes
+        assert main(argv[:-2] + ["--processes", processes]) == 0
+        assert json.loads(capsys.readouterr().out) == out
     assert main(["inspect", str(path), "--scene", "ham", "--draws", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and "--draws" in err[0]

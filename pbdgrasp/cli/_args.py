@@ -1,4 +1,5 @@
-"""Argument types of the command line: ranged numbers, seeds and checked output paths.
+"""Argument types of the command line: ranged numbers, seeds and checked output paths (and ``--processes``,
+which three commands share).
 
 Each factory returns an ``argparse`` ``type=`` callable, so that a bad value is refused while the command
 line is parsed, before any work, with one line saying the range and the unit (or what is wrong with the
@@ -14,7 +15,7 @@ from collections.abc import Callable
 from assets.errors import InputError
 from assets.io import check_output_dir, check_output_file
 
-__all__ = ["int_in", "float_in", "seed", "output_file", "output_dir", "MAX_SEED"]
+__all__ = ["int_in", "float_in", "seed", "output_file", "output_dir", "add_processes_argument", "MAX_SEED"]
 
 MAX_SEED = 2**63 - 1
 """Seeds are non-negative integers below 2**63 (``numpy.random.SeedSequence`` takes any non-negative int;
@@ -86,3 +87,16 @@ def output_dir(text: str) -> str:
     except InputError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def add_processes_argument(p: argparse.ArgumentParser) -> None:
+    """``--processes N``: the processes that close the hand at many draws (``retarget``, ``learn`` and
+    ``inspect``; :class:`planning.closing_pool.ClosingPool`, whose default is the cores, at most 8)."""
+    p.add_argument(
+        "--processes",
+        type=int_in(1, 256),
+        default=None,
+        metavar="N",
+        help="processes that close the hand at the draws (default: the cores, at most 8; the same result "
+        "on any number)",
+    )

@@ -7,7 +7,7 @@ import logging
 
 import numpy as np
 
-from ._args import float_in, int_in, output_file, seed
+from ._args import add_processes_argument, float_in, int_in, output_file, seed
 from ._out import warn
 
 NAME = "inspect"
@@ -26,6 +26,7 @@ def add_arguments(p) -> None:
     )
     p.add_argument("--seed", type=seed, default=0, help="seed of the draws (default 0)")
     p.add_argument("--json", action="store_true", help="print the measurements as JSON")
+    add_processes_argument(p)
     p.add_argument(
         "--plot", type=output_file(".png"), metavar="OUT.png", help="also plot the free fraction over time"
     )
@@ -40,7 +41,8 @@ def run(args) -> int:
     scene = load_scene(args.scene)
     if model.object != scene.object.name:
         warn(f"{args.model} was learned on {model.object!r}; the scene's object is {scene.object.name!r}")
-    result = inspect_model(model, scene, args.draws, np.random.default_rng(args.seed), args.epsilon)
+    rng = np.random.default_rng(args.seed)
+    result = inspect_model(model, scene, args.draws, rng, args.epsilon, args.processes)
     print(result.to_json() if args.json else result.summary())
     if args.plot:
         plot_free_fraction({f"{scene.name} ({model.object})": result}, args.plot)

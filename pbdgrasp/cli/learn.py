@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 
-from ._args import int_in, output_file, seed
+from ._args import add_processes_argument, int_in, output_file, seed
 from ._out import stage, warn
 from .retarget import add_final_grasp_argument
 
@@ -39,6 +39,7 @@ def add_arguments(p) -> None:
         "--seed", type=seed, default=0, help="the seed of the refined final grasp's draws (and provenance)"
     )
     add_final_grasp_argument(p)
+    add_processes_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
 
@@ -59,7 +60,12 @@ def run(args) -> int:
     config = retarget.config_of(args)
     stage(f"retargeting {demo.object} ({demo.num_steps} steps)", enabled=False if args.no_progress else None)
     traj, result = retarget_in_scene(
-        demo, own_scene, config, progress=not args.no_progress, meta={"seed": args.seed}
+        demo,
+        own_scene,
+        config,
+        progress=not args.no_progress,
+        meta={"seed": args.seed},
+        processes=args.processes,
     )
     if args.trajectory:
         traj.save(args.trajectory)

@@ -13,7 +13,7 @@ from pathlib import Path
 from assets.errors import InputError
 from retarget.config import FINAL_GRASPS, TARGETS
 
-from ._args import float_in, int_in, output_file, seed
+from ._args import add_processes_argument, float_in, int_in, output_file, seed
 
 NAME = "retarget"
 HELP = "retarget a human demonstration to the SAH: write tau_r and Sigma_r(t) (.traj.npz)"
@@ -56,6 +56,7 @@ def add_arguments(p) -> None:
         "the paper's 0.1 for the others; docs/method.md)",
     )
     add_final_grasp_argument(p)
+    add_processes_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -103,7 +104,7 @@ def run(args) -> int:
             )
     start = time.perf_counter()
     traj, result = retarget_in_scene(
-        demo, scene, config, progress=not args.no_progress, meta={"seed": args.seed}
+        demo, scene, config, progress=not args.no_progress, meta={"seed": args.seed}, processes=args.processes
     )
     traj.save(out)
     print(summary(demo, traj, result, time.perf_counter() - start, out))
