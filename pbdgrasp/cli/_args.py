@@ -92,11 +92,5 @@ def output_dir(text: str) -> str:
 def add_processes_argument(p: argparse.ArgumentParser) -> None:
     """``--processes N``: the processes that close the hand at many draws (``retarget``, ``learn`` and
     ``inspect``; :class:`planning.closing_pool.ClosingPool`, whose default is the cores, at most 8)."""
-    p.add_argument(
-        "--processes",
-        type=int_in(1, 256),
-        default=None,
-        metavar="N",
-        help="processes that close the hand at the draws (default: the cores, at most 8; the same result "
-        "on any number)",
-    )
+    what = "processes closing the hand at the draws (default: the cores, at most 8; the same result on any)"
+    p.add_argument("--processes", type=int_in(1, 256), default=None, metavar="N", help=what)
