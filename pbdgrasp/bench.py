@@ -45,7 +45,7 @@ import numpy as np
 
 from assets.errors import InputError
 from assets.q_layout import Q_DIM
-from planning.closing_pool import MAX_DEFAULT_PROCESSES
+from planning.closing_pool import default_processes
 
 from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
 from .bench_planning import PLANNING_SCENES, bench_planning
@@ -337,7 +337,7 @@ def bench_retargeting(
         "max_nfev": config.max_nfev,
         "s_per_step": (dt - final_s) / n,
         "final_grasp_s": final_s,
-        "closing_processes": min(os.cpu_count() or 1, MAX_DEFAULT_PROCESSES),
+        "closing_processes": default_processes(),
         "total_s": dt,
         "mean_nfev": float(np.mean(res.nfev)),
         "collision_checks": int(np.sum(res.n_collision_checks)),

@@ -120,9 +120,9 @@ def inspect_model(
     epsilon: float = 0.05,
     processes: int | None = None,
 ) -> Inspection:
-    """Measure ``model``'s marginals in ``scene`` (module docstring); the last step's draws are closed on
-    ``processes`` processes (default: the machine's cores; :class:`~planning.closing_pool.ClosingPool`,
-    the same result on any number).
+    """Measure ``model``'s marginals in ``scene`` (module docstring); the draws are checked and the last
+    step's closed on ``processes`` processes (default: the machine's cores, at most 8;
+    :class:`~planning.closing_pool.ClosingPool`, the same result on any number).
 
     Raises:
         InputError: ``draws`` below 1 or ``epsilon`` not in (0, 1).

@@ -36,7 +36,7 @@ from .autograsp import AutoGraspConfig, GraspResult, HandCloser
 from .scene import Scene
 from .world import World
 
-__all__ = ["ClosingPool", "MAX_DEFAULT_PROCESSES", "RowsFn", "close_rows"]
+__all__ = ["ClosingPool", "MAX_DEFAULT_PROCESSES", "RowsFn", "close_rows", "default_processes"]
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +66,13 @@ def _run_chunk(fn: RowsFn, qs: np.ndarray) -> list:
 
 
 def close_rows(closer: HandCloser, qs: np.ndarray) -> list[GraspResult]:
-    """:meth:`HandCloser.close` at each row of ``qs`` (:meth:`ClosingPool.close_many`'s :data:`RowsFn`)."""
-    return [closer.close(q) for q in qs]
+    """:meth:`HandCloser.close_many` as :meth:`ClosingPool.close_many`'s :data:`RowsFn`."""
+    return closer.close_many(qs)
+
+
+def default_processes() -> int:
+    """The machine's cores, at most :data:`MAX_DEFAULT_PROCESSES`: a pool's size when none is given."""
+    return min(os.cpu_count() or 1, MAX_DEFAULT_PROCESSES)
 
 
 def _context():
@@ -102,9 +107,7 @@ class ClosingPool:
         processes: int | None = None,
         world: World | None = None,
     ):
-        if processes is None:
-            processes = min(os.cpu_count() or 1, MAX_DEFAULT_PROCESSES)
-        processes = int(processes)
+        processes = default_processes() if processes is None else int(processes)
         if processes < 1:
             raise InputError(f"ClosingPool: processes must be >= 1, found {processes}")
         if multiprocessing.current_process().daemon:
