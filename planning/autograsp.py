@@ -21,8 +21,10 @@ Closing, as GraspIt!'s ``Robot::autoGrasp`` does it, on a :class:`planning.world
 
 The contacts with the target object are pybullet's contact points of the closed hand closer than
 ``touch_margin_m``; their normals are turned to point into the object (the direction the finger pushes).
-Points, normals and the object's centre of mass are in the world frame; the torque radius is the
-object's ``max_radius_m`` (GraspIt!'s ``maxRadius``).
+Points, normals and the object's centre of mass are in the world frame (the centre of mass: the asset's
+``center_of_mass_m`` posed by the scene's ``T_world_object``; pybullet's base position is the inertial
+frame already, so adding the offset to it would count it twice); the torque radius is the object's
+``max_radius_m`` (GraspIt!'s ``maxRadius``).
 """
 
 from __future__ import annotations
@@ -139,7 +141,11 @@ class HandCloser:
         meta = assets.object_metadata(world.scene.object.name)
         self.friction = float(meta["friction"] if self.config.friction is None else self.config.friction)
         self.torque_radius_m = float(meta["max_radius_m"])
-        self.com_object = np.asarray(meta["center_of_mass_m"], dtype=float)
+        T_world_object = world.scene.T_world_object
+        #: (3,) [m] the object's centre of mass in the world, the torques' reference point
+        self.com_world = (
+            T_world_object[:3, :3] @ np.asarray(meta["center_of_mass_m"], float) + T_world_object[:3, 3]
+        )
         closing = [f"{f}_{j}" for f in sah.FINGERS for j in ("prox", "mid")]
         self.closing = np.array([sah.JOINT_NAMES.index(j) for j in closing])  # indices into the 13 joints
         self.upper = np.asarray(sah.JOINT_LIMITS, dtype=float)[self.closing, 1]
@@ -206,7 +212,7 @@ class HandCloser:
         points, normals, links = self._object_contacts()
         quality = (
             epsilon_l1(
-                points, normals, self.friction, self._com_world(), self.torque_radius_m, cfg.num_cone_edges
+                points, normals, self.friction, self.com_world, self.torque_radius_m, cfg.num_cone_edges
             )
             if len(points)
             else 0.0
@@ -256,11 +262,6 @@ class HandCloser:
         if not pts:
             return np.zeros((0, 3)), np.zeros((0, 3)), []
         return np.concatenate(pts), np.concatenate(nrm), links
-
-    def _com_world(self) -> np.ndarray:
-        pos, orn = pb.getBasePositionAndOrientation(self.object_id, physicsClientId=self.client)
-        R = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
-        return np.asarray(pos) + R @ self.com_object
 
 
 def _reduce_patch(points: np.ndarray, normals: np.ndarray, merge_radius_m: float, max_points: int):

@@ -129,6 +129,17 @@ def test_reduce_patch_keeps_the_diameter_and_merges_duplicates():
     assert np.allclose(cp, [p.mean(axis=0)]) and np.allclose(cn, [[0, 0, 1]])
 
 
+@pytest.mark.parametrize("scene", ["chips", "chips_flat"])
+def test_the_torques_are_taken_about_the_cans_centre(scene):
+    """A can's centre of mass is the middle of its bounding box (pybullet's), upright or lying."""
+    from planning._pybullet import pb
+
+    with World(scene) as w:
+        lo, hi = pb.getAABB(w.object_id, physicsClientId=w.client)
+        middle = (np.array(lo) + np.array(hi)) / 2
+        np.testing.assert_allclose(HandCloser(w).com_world, middle, atol=0.002)  # AABB margin, mesh facets
+
+
 def test_bad_config_and_q_raise(ham):
     with pytest.raises(ValueError, match="step_rad"):
         AutoGraspConfig(step_rad=0.0)
