@@ -64,9 +64,12 @@ class AutoGraspConfig:
             and normal); pybullet reports up to 4 points per link and body.
         max_contacts_per_link: the contact patch of a link is kept as at most this many points: 1 is the
             patch's centroid with its mean normal; 2 or more keep the most distant points (2: a line
-            contact exactly, a face contact by its diameter). Qhull's time grows fast with the contacts
-            (4 contacts ~3 ms, 7 ~15 ms, 12 ~55 ms here), hence the default 1; 2 raised the test grasps'
-            epsilon by ~12-16% at 2-5x the time.
+            contact exactly, a face contact by its diameter). pybullet reports one point per link and
+            convex piece of the object, so a link has several points only where it touches several
+            pieces (a fingertip in the groove between the jam jar's lid and body, a mug's segments):
+            the default 4 keeps them as distinct contacts, as GraspIt! does, instead of one centroid
+            off the surface with a mean normal. Qhull's time grows with the contacts (4 ~3 ms, 7 ~15
+            ms, 12 ~55 ms here).
     """
 
     step_rad: float = np.deg2rad(2.0)
@@ -76,7 +79,7 @@ class AutoGraspConfig:
     num_cone_edges: int = 8
     friction: float | None = None
     merge_radius_m: float = 0.005
-    max_contacts_per_link: int = 1
+    max_contacts_per_link: int = 4
 
     def __post_init__(self):
         if not (0 < self.min_step_rad <= self.step_rad <= np.deg2rad(20.0)):

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+import assets
 from assets import sah
 from pbdgrasp.bench_fixtures import HAM_GRASP_Q
 from planning.autograsp import AutoGraspConfig, HandCloser, _reduce_patch
@@ -127,6 +128,42 @@ def test_reduce_patch_keeps_the_diameter_and_merges_duplicates():
     assert np.allclose(rn, [[0, 0, 1]] * 2)
     cp, cn = _reduce_patch(p, n, merge_radius_m=0.005, max_points=1)
     assert np.allclose(cp, [p.mean(axis=0)]) and np.allclose(cn, [[0, 0, 1]])
+
+
+# A draw of the jam strategy's last marginal (jam jar scene): closed, the thumb's tip rests in the groove
+# between the jar's lid and its body, touching both convex pieces (z 66 and 75 mm, normals 20 deg below
+# and above the horizontal).
+JAM_THUMB_IN_GROOVE = [0.093406, 0.065221, 0.241066, 2.626794, -0.012568, -1.052216,
+                       1.563315, -0.044596, -0.052493, 0.803732, -0.061128, 0.103892, 0.582487,
+                       0.120234, 0.110047, 0.349071, 0.196311, 0.101142, 0.390015]  # fmt: skip
+
+
+def test_a_link_touching_two_pieces_keeps_two_contacts():
+    """The default keeps a link's points on separate convex pieces as separate contacts; epsilon is that
+    of exactly the reported contacts, and one centroid with a mean normal would score less."""
+    from planning.grasp_quality import epsilon_l1
+
+    with World("jam") as jam:
+        closer = HandCloser(jam)
+        res = closer.close(np.array(JAM_THUMB_IN_GROOVE))
+        thumb = [i for i, link in enumerate(res.contact_links) if link == "thumb_distal"]
+        assert len(thumb) == 2
+        p, n = res.contact_points_world[thumb], res.contact_normals_world[thumb]
+        assert np.linalg.norm(p[0] - p[1]) > closer.config.merge_radius_m
+        assert np.degrees(np.arccos(n[0] @ n[1])) > 30.0  # one pushes down on the body, one up on the lid
+        assert np.sign(n[0, 2]) != np.sign(n[1, 2])
+        meta = assets.object_metadata("jam")
+        com = jam.scene.T_world_object[:3, :3] @ meta["center_of_mass_m"] + jam.scene.T_world_object[:3, 3]
+        expected = epsilon_l1(
+            res.contact_points_world, res.contact_normals_world, meta["friction"], com, meta["max_radius_m"]
+        )
+        assert res.quality == pytest.approx(expected, rel=1e-9) and res.quality >= QUALITY_THRESHOLD
+        merged = HandCloser(jam, AutoGraspConfig(max_contacts_per_link=1)).close(
+            np.array(JAM_THUMB_IN_GROOVE)
+        )
+        assert merged.contact_links.count("thumb_distal") == 1
+        assert np.array_equal(merged.closed_q, res.closed_q)  # the closing is the same, only the scoring
+        assert merged.quality < res.quality
 
 
 @pytest.mark.parametrize("scene", ["chips", "chips_flat"])
