@@ -61,15 +61,14 @@ class AutoGraspConfig:
         num_cone_edges: friction cone edges of each contact (GraspIt!: 8).
         friction: Coulomb coefficient; None takes the object's asset metadata (``friction``).
         merge_radius_m: contact points of one link closer than this are merged into one (mean point
-            and normal); pybullet reports up to 4 points per link and body.
+            and normal). pybullet reports one point per convex piece of the object that a link touches
+            (up to 4 per link and body), so a link has several only where it touches several pieces (a
+            fingertip in the groove between the jam jar's lid and body, a mug's segments).
         max_contacts_per_link: the contact patch of a link is kept as at most this many points: 1 is the
             patch's centroid with its mean normal; 2 or more keep the most distant points (2: a line
-            contact exactly, a face contact by its diameter). pybullet reports one point per link and
-            convex piece of the object, so a link has several points only where it touches several
-            pieces (a fingertip in the groove between the jam jar's lid and body, a mug's segments):
-            the default 4 keeps them as distinct contacts, as GraspIt! does, instead of one centroid
-            off the surface with a mean normal. Qhull's time grows with the contacts (4 ~3 ms, 7 ~15
-            ms, 12 ~55 ms here).
+            contact exactly, a face contact by its diameter). The default 4 keeps every piece's point
+            as a contact, as GraspIt! does, instead of one centroid off the surface with a mean normal.
+            Qhull's time grows with the contacts (4 ~3 ms, 7 ~15 ms, 12 ~55 ms here).
     """
 
     step_rad: float = np.deg2rad(2.0)
