@@ -7,14 +7,9 @@ grasps are. The best ones are then refined by hill climbing on epsilon, and each
 by a small wrist perturbation to tell a robust grasp from a knife edge. It answers, before any learning,
 whether a figure asked of a strategy (a quality, a fraction of valid draws) is within the hand's reach.
 
-Sampling (object frame): a point ``p`` on the object's surface, area-uniform on its visual mesh, with its
-outward normal ``n``; the palm's normal (the SAH wrist's +x axis, out of the palm) within ``cone_deg`` of
-``-n``, uniformly on that spherical cap; a roll about it uniform; the hand's grasp centre at ``p + s n``
-with the standoff ``s`` uniform in ``standoff_m``, the grasp centre uniform on the hand's axis from the
-palm centre (:func:`retarget.objective.palm_centre`) to ``reach_beyond_knuckles_m`` beyond the knuckles;
-the fingers at the SAH's rest pose (:func:`assets.sah.rest_joints`) with the thumb's opposition uniform
-within its joint limits. Poses are then placed in the scene's object pose; collisions
-count against every body of the scene (table, obstacles, the object, the hand itself).
+Sampling: poses about the object's surface, or draws of a strategy's last marginal
+(:mod:`pbdgrasp.ceiling_poses` says how); collisions count against every body of the scene (table,
+obstacles, the object, the hand itself).
 
 Refinement: from each of the ``refine_best`` best valid samples, ``refine_iterations`` proposals of a
 Gaussian wrist step (``refine_step_m``, ``refine_step_deg``) and thumb-opposition step; a proposal is kept
@@ -22,9 +17,15 @@ when it is collision-free and closes better. Robustness: ``perturb_draws`` draws
 (``perturb_m`` per axis, ``perturb_deg`` about a random axis) about each refined pose; a colliding draw
 scores 0.
 
+Near a strategy (``near``, a :class:`~inference.model.VariationModel`): ``samples`` draws of its last
+marginal instead, and the refinement keeps to a :class:`~pbdgrasp.ceiling_poses.Region` about its last
+mean (``near_position_m`` per axis of the mean's wrist frame, ``near_rotation_deg`` of turn; by default
+the trust region of the refined final grasp, :class:`retarget.final_grasp.FinalGraspConfig`): how strong
+the grasps are that the demonstrated grasp leads to, as against what the hand can hold at all.
+
 Workers: the sampled poses are drawn first, then closed in chunks of ``chunk`` poses; each refinement
 and its shaking runs with its own generator, spawned from ``rng`` (``Generator.spawn``). With ``workers``
-> 1 and more than one chunk, both run on ``workers`` single-threaded Dask worker processes
+> 1 and more than one chunk or refinement, both run on ``workers`` single-threaded Dask worker processes
 (:func:`pbdgrasp.workers.task_client`), each task in a pybullet world of its own; otherwise in this
 process. Closing is deterministic, so the result is the same for any number of workers.
 """
@@ -39,19 +40,20 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-import assets
 from assets import sah
 from assets.errors import InputError
 from assets.se3 import pose_from_q, q_from_pose
+from inference.model import VariationModel
 from planning.autograsp import AutoGraspConfig, HandCloser
-from planning.grasp_quality import tangent_basis
 from planning.scene import Scene
 from planning.world import World
-from retarget.objective import THUMB_BASE, palm_centre
+from retarget.final_grasp import FinalGraspConfig
+from retarget.objective import THUMB_BASE
 
+from .ceiling_poses import Region, strategy_draws, surface_poses
 from .workers import map_tasks, task_client
 
-__all__ = ["CeilingConfig", "Ceiling", "grasp_ceiling", "surface_samples", "wrist_poses"]
+__all__ = ["CeilingConfig", "Ceiling", "grasp_ceiling"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,8 @@ class CeilingConfig:
     perturb_m: float = 0.001
     perturb_deg: float = 1.0
     perturb_draws: int = 50
+    near_position_m: float = 1e-3 * FinalGraspConfig.max_position_mm
+    near_rotation_deg: float = FinalGraspConfig.max_rotation_deg
     workers: int = 1
     chunk: int = 5_000
 
@@ -92,7 +96,7 @@ class CeilingConfig:
         if not (0.0 <= self.cone_deg <= 90.0 and 0.0 < self.epsilon < 1.0):
             raise InputError("ceiling: need cone_deg in [0, 90] and epsilon in (0, 1)")
         steps = (self.refine_step_m, self.refine_step_deg, self.perturb_m, self.perturb_deg)
-        steps += (self.reach_beyond_knuckles_m,)
+        steps += (self.reach_beyond_knuckles_m, self.near_position_m, self.near_rotation_deg)
         if not all(np.isfinite(v) and v >= 0.0 for v in steps):
             raise InputError(f"ceiling: steps and perturbations must be finite and >= 0, found {steps}")
 
@@ -112,6 +116,9 @@ class Ceiling:
             perturbed draws.
         epsilon: the validity threshold.
         seconds: wall time.
+        near: ``""`` for poses about the object's surface; else the strategy whose last marginal was drawn
+            (its object and file).
+        region: with ``near``, the trust region of the refinement ``(mm per axis, deg)``; else empty.
     """
 
     scene: str
@@ -126,6 +133,8 @@ class Ceiling:
     robust_valid: tuple[float, ...]
     epsilon: float
     seconds: float
+    near: str = ""
+    region: tuple[float, ...] = ()
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -139,10 +148,15 @@ class Ceiling:
     def summary(self) -> str:
         """A few lines for the terminal."""
         share = self.valid / self.free if self.free else 0.0
+        what = f"draws of {self.near}'s last marginal" if self.near else "poses"
         lines = [
-            f"{self.object} in {self.scene}: {self.tried} poses, {self.free} collision-free, {self.valid} "
+            f"{self.object} in {self.scene}: {self.tried} {what}, {self.free} collision-free, {self.valid} "
             f"valid (epsilon >= {self.epsilon:g}; {share:.3%} of the free), {self.seconds:.0f} s",
         ]
+        if self.near:
+            lines.append(
+                f"refined within {self.region[0]:g} mm per axis and {self.region[1]:g} deg of its last mean"
+            )
         if self.valid_quantiles:
             med, p95, top = self.valid_quantiles
             lines.append(f"valid samples: median {med:.3f}, p95 {p95:.3f}, max {top:.3f}")
@@ -158,54 +172,6 @@ class Ceiling:
                 f"({self.robust_valid[best]:.0%} valid), refined {self.refined[best]:.3f}"
             )
         return "\n".join(lines)
-
-
-def surface_samples(vertices: np.ndarray, triangles: np.ndarray, n: int, rng: np.random.Generator):
-    """``n`` area-uniform points (n, 3) on a triangle mesh and their unit outward normals (n, 3).
-
-    The normals are the triangles' (right-handed vertex order, as the shipped meshes are written).
-    """
-    v = np.asarray(vertices, dtype=float)[np.asarray(triangles)]
-    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    if not area.sum() > 0:
-        raise InputError("surface_samples: the mesh has no area")
-    k = rng.choice(len(v), size=n, p=area / area.sum())
-    a, b = rng.random((2, n))
-    flip = a + b > 1.0
-    a[flip], b[flip] = 1.0 - a[flip], 1.0 - b[flip]
-    points = v[k, 0] + a[:, None] * (v[k, 1] - v[k, 0]) + b[:, None] * (v[k, 2] - v[k, 0])
-    return points, cross[k] / np.linalg.norm(cross[k], axis=1, keepdims=True)
-
-
-def wrist_poses(points, normals, config: CeilingConfig, rng: np.random.Generator) -> np.ndarray:
-    """Object-frame wrist poses (n, 4, 4) whose palm faces the surface ``points`` (n, 3) against their
-    outward ``normals`` (n, 3) (module docstring)."""
-    points = np.asarray(points, dtype=float)
-    approach = -np.asarray(normals, dtype=float)
-    n = len(points)
-    cos_max = np.cos(np.deg2rad(config.cone_deg))
-    c = 1.0 - rng.random(n) * (1.0 - cos_max)  # uniform on the cap: cos uniform in [cos_max, 1]
-    phi = rng.uniform(0.0, 2 * np.pi, n)
-    e1, e2 = tangent_basis(approach)
-    s = np.sqrt(1.0 - c**2)[:, None]
-    x_axis = s * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2) + c[:, None] * approach
-    u, w = tangent_basis(x_axis)
-    roll = rng.uniform(0.0, 2 * np.pi, n)[:, None]
-    z_axis = np.cos(roll) * u + np.sin(roll) * w
-    R = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=2)
-    standoff = rng.uniform(*config.standoff_m, size=n)
-    centre = points - standoff[:, None] * x_axis
-    # the hand's grasp centre: on the line from the palm centre to the knuckles (twice the palm centre,
-    # see retarget.objective.palm_centre) and up to reach_beyond_knuckles_m beyond them
-    palm = palm_centre(sah)
-    knuckles = 2.0 * palm
-    along = rng.uniform(0.0, 1.0 + config.reach_beyond_knuckles_m / np.linalg.norm(knuckles - palm), n)
-    local = palm + along[:, None] * (knuckles - palm)
-    T = np.tile(np.eye(4), (n, 1, 1))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = centre - np.einsum("nij,nj->ni", R, local)
-    return T
 
 
 def _perturbed(q: np.ndarray, step_m: float, step_deg: float, thumb_rad: float, rng, n: int) -> np.ndarray:
@@ -244,6 +210,7 @@ def grasp_ceiling(
     config: CeilingConfig = CeilingConfig(),
     rng: np.random.Generator | None = None,
     progress: bool = False,
+    near: VariationModel | None = None,
 ) -> Ceiling:
     """Sample, close, refine and shake grasps of ``scene``'s object (module docstring).
 
@@ -252,23 +219,20 @@ def grasp_ceiling(
         config: :class:`CeilingConfig`.
         rng: the only source of randomness (default: seed 0).
         progress: a tqdm bar over the poses on a terminal (stderr).
+        near: a strategy: draw its last marginal and refine within :class:`Region` about its last mean,
+            instead of poses about the whole object.
     """
-    import open3d as o3d
-
     rng = rng or np.random.default_rng(0)
     t0 = time.perf_counter()
-    mesh = o3d.io.read_triangle_mesh(str(assets.object_mesh(scene.object.name)))
-    points, normals = surface_samples(
-        np.asarray(mesh.vertices), np.asarray(mesh.triangles), config.samples, rng
-    )
-    T_world_wrist = scene.T_world_object @ wrist_poses(points, normals, config, rng)
-    joints = np.tile(sah.rest_joints(), (config.samples, 1))
-    lo, hi = sah.JOINT_LIMITS[THUMB_BASE]
-    joints[:, THUMB_BASE] = rng.uniform(lo, hi, config.samples)
-    q_sampled = np.concatenate([q_from_pose(T_world_wrist), joints], axis=1)
+    region = None
+    if near is None:
+        q_sampled = surface_poses(scene, config, rng)
+    else:
+        q_sampled, region = strategy_draws(scene, near, config, rng)
     starts = range(0, config.samples, config.chunk)
     bars = dict(disable=None if progress else True, leave=False)  # None: the bars only on a terminal
-    with task_client(config.workers if len(starts) > 1 else 1) as client:
+    parallel = len(starts) > 1 or config.refine_best > 1  # the closings or the refinements
+    with task_client(config.workers if parallel else 1) as client:
         with tqdm(desc="closing the hand", total=config.samples, unit="pose", **bars) as bar:
             chunks = map_tasks(
                 client,
@@ -279,13 +243,13 @@ def grasp_ceiling(
         free = sum(c[0] for c in chunks)
         valid = [(e, q_sampled[start + i]) for start, c in zip(starts, chunks, strict=True) for e, i in c[1]]
         valid.sort(key=lambda v: -v[0])
-        best = valid[: config.refine_best]
+        best = [v for v in valid if region is None or region.contains(v[1])][: config.refine_best]
         chain_rngs = rng.spawn(len(best))
         with tqdm(desc="refining", total=len(best), unit="grasp", **bars) as bar:
             chains = map_tasks(
                 client,
                 _refine_and_shake,
-                [(scene, e, q, config, r) for (e, q), r in zip(best, chain_rngs, strict=True)],
+                [(scene, e, q, config, r, region) for (e, q), r in zip(best, chain_rngs, strict=True)],
                 lambda task, result: bar.update(),
             )
     chains.sort(key=lambda c: -c[0])
@@ -305,6 +269,8 @@ def grasp_ceiling(
         robust_valid=tuple(float(v) for _, v in shaken),
         epsilon=float(config.epsilon),
         seconds=time.perf_counter() - t0,
+        near="" if near is None else f"the {near.object} strategy ({near.path or 'in memory'})",
+        region=() if near is None else (1e3 * config.near_position_m, config.near_rotation_deg),
     )
 
 
@@ -324,22 +290,28 @@ def _score_chunk(scene: Scene, q: np.ndarray, epsilon: float) -> tuple[int, list
         score.world.close()
 
 
-def _refine_and_shake(scene: Scene, e: float, q: np.ndarray, config: CeilingConfig, rng):
-    """One valid sample refined (:func:`_refine`) and its result shaken (:func:`_shake`) in a world of its
-    own, with its own generator: ``(epsilon, q, mean epsilon shaken, valid fraction shaken)``."""
+def _refine_and_shake(scene: Scene, e: float, q: np.ndarray, config: CeilingConfig, rng, region=None):
+    """One valid sample refined (:func:`_refine`, within ``region``) and its result shaken (:func:`_shake`)
+    in a world of its own, with its own generator: ``(epsilon, q, mean epsilon shaken, valid fraction
+    shaken)``."""
     score = _Scorer(scene)
     try:
-        e, q = _refine(score, e, q, config, rng)
+        e, q = _refine(score, e, q, config, rng, region)
         return (e, q, *_shake(score, q, config, rng))
     finally:
         score.world.close()
 
 
-def _refine(score, e: float, q: np.ndarray, config: CeilingConfig, rng) -> tuple[float, np.ndarray]:
-    """Hill climbing on epsilon from ``q`` (quality ``e``): keep a proposal that is free and closes better."""
+def _refine(
+    score, e: float, q: np.ndarray, config: CeilingConfig, rng, region: Region | None = None
+) -> tuple[float, np.ndarray]:
+    """Hill climbing on epsilon from ``q`` (quality ``e``): keep a proposal that is free and closes better
+    (and lies in ``region``; a proposal outside it is not closed and counts as an iteration)."""
     thumb = np.deg2rad(config.refine_step_deg)
     for _ in range(config.refine_iterations):
         x = _perturbed(q, config.refine_step_m, config.refine_step_deg, thumb, rng, 1)[0]
+        if region is not None and not region.contains(x):
+            continue
         ok, ex = score(x)
         if ok and ex > e:
             e, q = ex, x

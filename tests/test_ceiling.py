@@ -1,5 +1,6 @@
 """The grasp-quality ceiling (pbdgrasp.ceiling): its surface and pose sampling against closed forms, its
-refinement and perturbation against a hand-placed grasp scored independently, and its command line."""
+refinement and perturbation against a hand-placed grasp scored independently, the ceiling near a strategy
+(its draws counted again in pybullet, its trust region against its bounds), and its command line."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import pytest
 
 from assets import sah
 from assets.errors import InputError
-from pbdgrasp import ceiling
+from assets.se3 import make_pose, pose_from_q, q_from_pose, so3_exp
+from inference.sampler import sample
+from pbdgrasp import ceiling, ceiling_poses
 from pbdgrasp.bench_fixtures import HAM_GRASP_Q
 from pbdgrasp.cli import main
 from planning.autograsp import AutoGraspConfig, HandCloser
@@ -29,7 +32,7 @@ _CUBE_T = np.array(
 
 def test_surface_samples_lie_on_a_cube_with_outward_normals_and_equal_faces():
     rng = np.random.default_rng(0)
-    p, n = ceiling.surface_samples(_CUBE_V, _CUBE_T, 60_000, rng)
+    p, n = ceiling_poses.surface_samples(_CUBE_V, _CUBE_T, 60_000, rng)
     face = np.argmax(np.abs(p), axis=1) + 3 * (p[np.arange(len(p)), np.argmax(np.abs(p), axis=1)] > 0)
     np.testing.assert_allclose(np.max(np.abs(p), axis=1), 0.5, atol=1e-12)  # on the surface
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
@@ -40,9 +43,9 @@ def test_surface_samples_lie_on_a_cube_with_outward_normals_and_equal_faces():
 
 def test_wrist_poses_face_the_point_at_the_standoff_along_the_hand_axis():
     rng = np.random.default_rng(1)
-    p, n = ceiling.surface_samples(_CUBE_V, _CUBE_T, 500, rng)
+    p, n = ceiling_poses.surface_samples(_CUBE_V, _CUBE_T, 500, rng)
     cfg = ceiling.CeilingConfig(standoff_m=(0.02, 0.02), cone_deg=0.0, reach_beyond_knuckles_m=0.03)
-    T = ceiling.wrist_poses(p, n, cfg, rng)
+    T = ceiling_poses.wrist_poses(p, n, cfg, rng)
     R = T[:, :3, :3]
     np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.tile(np.eye(3), (500, 1, 1)), atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
@@ -56,7 +59,7 @@ def test_wrist_poses_face_the_point_at_the_standoff_along_the_hand_axis():
     np.testing.assert_allclose(local - palm, s[:, None] * axis, atol=1e-12)
     assert s.min() >= -1e-12 and s.max() <= np.linalg.norm(palm) + 0.03 + 1e-12
     # with a cone, the palm's normal stays within it of -n
-    wide = ceiling.wrist_poses(p, n, ceiling.CeilingConfig(cone_deg=30.0), rng)
+    wide = ceiling_poses.wrist_poses(p, n, ceiling.CeilingConfig(cone_deg=30.0), rng)
     cos = np.sum(wide[:, :3, 0] * -n, axis=1)
     assert cos.min() >= np.cos(np.deg2rad(30.0)) - 1e-12 and cos.max() > np.cos(np.deg2rad(2.0))
 
@@ -142,3 +145,80 @@ def test_cli_refuses_a_bad_sample_count_and_warns_when_nothing_is_valid(tmp_path
     best = tmp_path / "best.json"
     assert main(["ceiling", "--scene", "ham", "--samples", "50", "-o", str(best)]) == 0
     assert "wrote nothing" in capsys.readouterr().err and not best.exists()
+
+
+def _turned(T: np.ndarray, axis, angle_deg: float, offset_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """``T`` moved by ``offset_m`` along its own axes and turned by ``angle_deg`` about its own ``axis``."""
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    return T @ make_pose(so3_exp(np.deg2rad(angle_deg) * axis), np.asarray(offset_m, dtype=float))
+
+
+def test_a_region_holds_what_lies_within_its_bounds_along_the_centres_own_axes():
+    """Centre turned 70 deg about a slanted axis: 24 mm along its own y is in and 26 mm out (along the world's
+    y, 26 mm is in: the bound is per axis of the centre's frame); an 11 deg turn is in, 13 deg out."""
+    centre = make_pose(
+        so3_exp(np.deg2rad(70.0) * np.array([1.0, 2.0, 2.0]) / 3.0), np.array([0.1, -0.2, 0.3])
+    )
+    region = ceiling_poses.Region(centre, 0.025, np.deg2rad(12.0))
+    joints = sah.rest_joints()
+
+    def q(T):
+        return np.r_[q_from_pose(T), joints]
+
+    assert region.contains(q(centre))
+    assert region.contains(q(_turned(centre, [0, 0, 1], 0.0, (0.0, 0.024, 0.0))))
+    assert not region.contains(q(_turned(centre, [0, 0, 1], 0.0, (0.0, 0.026, 0.0))))
+    world_y = centre.copy()
+    world_y[1, 3] += 0.026  # 26 mm along the world's y is within 25 mm along each of the centre's axes
+    assert np.all(np.abs(centre[:3, :3].T @ [0.0, 0.026, 0.0]) <= 0.025) and region.contains(q(world_y))
+    assert region.contains(q(_turned(centre, [1, -1, 0], 11.0)))
+    assert not region.contains(q(_turned(centre, [1, -1, 0], 13.0)))
+
+
+def test_the_refinement_climbs_to_the_regions_rim_and_not_beyond():
+    """A score that grows with the wrist's world x (every pose free): without a region the climb leaves a
+    5 mm box; with it, it ends inside the box, higher than it started, within a few steps of the rim."""
+    q0 = np.r_[q_from_pose(make_pose(so3_exp(np.array([0.3, -0.2, 0.1])), np.zeros(3))), sah.rest_joints()]
+    region = ceiling_poses.Region(pose_from_q(q0), 0.005, np.deg2rad(180.0))
+
+    def score(q):
+        return True, float(q[0])
+
+    cfg = ceiling.CeilingConfig(refine_iterations=400, refine_step_m=0.001)
+    free_e, free_q = ceiling._refine(score, 0.0, q0, cfg, np.random.default_rng(4))
+    assert not region.contains(free_q)
+    e, q = ceiling._refine(score, 0.0, q0, cfg, np.random.default_rng(4), region)
+    # the largest world x in the box: 5 mm times the L1 norm of the world x axis in the centre's frame
+    rim = 0.005 * np.abs(pose_from_q(q0)[0, :3]).sum()
+    assert region.contains(q) and 0.0 < e <= rim + 1e-12 and e > rim - 0.003
+
+
+def test_near_a_strategy_the_draws_are_its_last_marginal_counted_alike_in_pybullet(ham_top_down_model):
+    """The ham strategy built in code, 150 draws: the free count is the one of the same draws (the same
+    seed through the sampler) checked one by one in a second world; the refined pose stays in the region."""
+    scene = load_scene("ham")
+    model = ham_top_down_model(12)
+    cfg = ceiling.CeilingConfig(samples=150, refine_best=1, refine_iterations=20, perturb_draws=3)
+    result = ceiling.grasp_ceiling(scene, cfg, np.random.default_rng(8), near=model)
+    in_scene = dataclasses.replace(
+        model, T_world_object_mean=scene.T_world_object, cov_object=scene.cov_object
+    )
+    draws = sample(
+        in_scene, model.num_steps - 1, 150, np.random.default_rng(8), joint_limits=sah.JOINT_LIMITS
+    )
+    with World(scene) as world:
+        free = sum(world.is_free(q) for q in draws)
+    assert result.tried == 150 and result.free == free and result.valid > 0
+    assert result.near.startswith("the ham strategy") and result.region == (25.0, 12.0)
+    region = ceiling_poses.Region(scene.T_world_object @ model.T_object_wrist_mean[-1], 0.025, np.deg2rad(12))
+    assert len(result.refined) == 1 and region.contains(np.array(result.refined_q[0]))
+    assert result.refined[0] >= result.valid_quantiles[2]
+
+
+def test_cli_near_needs_a_model_and_refuses_a_missing_one(tmp_path, capsys):
+    assert main(["ceiling", "--scene", "ham", "--near-position-mm", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "--near" in err[0]
+    assert main(["ceiling", "--scene", "ham", "--near", str(tmp_path / "none.model.npz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:")
