@@ -6,16 +6,19 @@ hinge adds nothing where a margin is positive: near the grasp the marginals keep
 Sigma_r + Sigma_m towards the object, and most draws of the last steps enter it or close far from it.
 Section V-B of the paper enforces "a specific range of constraint values, given by the mean r_t and
 covariance R_t" by a prior f_4t on C_t = phi(X_t). Here, at each of the last
-``params.contact_steps(grasp_type)`` steps (by default 15 for power grasps, none for precision grasps),
+``params.contact_steps(grasp_type)`` steps (by default 15 for either grasp type),
 C_t is the margins to the grasped object (distance - object clearance - radius, as in
 :mod:`inference.clearance`) of the spheres that tau_r, placed at the scene's object pose, brings within
 ``params.contact_reach_mm`` of it; r_t is their values in tau_r clipped to ``[0, reach]`` (the
-demonstrated contact, outside the clearance), and ``R_t = contact_std^2 I``. A sphere that tau_r brings
-within ``params.contact_release_mm`` of the table's or an obstacle's clearance is not held: where the
-scene occupies the place of a demonstrated contact (the lying can's table under the wrap's fingers),
-that contact gives way to the scene, and the others still hold the hand to the object (three chips: the
-palm on the grasped can while the fingers leave the neighbours). Without a scene or an object field
-there are none.
+demonstrated contact, outside the clearance), and ``R_t = contact_std^2 I``. Where the scene occupies the
+place of a demonstrated contact, the contact gives way to it. For a power grasp (``power_contact_release:
+sphere``) a sphere that tau_r brings within ``params.contact_release_mm`` of the table's or an obstacle's
+clearance is not held (the lying can's table under the wrap's fingers), and the others still hold the
+hand to the object (three chips: the palm on the grasped can while the fingers leave the neighbours). A
+precision grasp (``precision_contact_release: step``) is its few fingertip contacts together: a step at
+which tau_r has one of them inside that clearance holds none (the jar in a hole: the block takes the
+demonstrated contacts, and the grasp moves up as a whole).
+Without a scene or an object field there are none.
 
 Where the scene's object is not the demonstration's (a strategy carried to a similar object: the chips
 strategy on the bottle), the rows and r_t are tau_r's margins to the *demonstrated* object placed at the
@@ -92,15 +95,22 @@ def contact_plan(
     W = T_world_object @ np.asarray(traj.T_object_wrist)[last]
     J = np.asarray(traj.joints)[last]
     margins = source(T_world_object, W, J)[:, : source.n_spheres]
-    free = np.ones_like(margins, dtype=bool)
+    env_margins = None
     environment = getattr(clearance, "environment_only", None)
-    if environment is not None:  # released where the scene is within contact_release_mm
+    if environment is not None:  # the margins to the table's and the obstacles' clearance
         release = params.contact_release_mm * 1e-3
         env = environment().reaching(release)
-        free = env(T_world_object, W, J)[:, : env.n_spheres] > release
+        env_margins = env(T_world_object, W, J)[:, : env.n_spheres]
+    whole_step = params.contact_release(traj.grasp_type) == "step"
     steps, rows, targets = [], [], []
     for k, t in enumerate(last):
-        near = np.flatnonzero((margins[k] < reach) & free[k])
+        within = margins[k] < reach
+        if env_margins is not None and whole_step:
+            if np.any(env_margins[k][within] <= 0.0):
+                continue  # the scene occupies one of this step's contacts: the step holds none
+        elif env_margins is not None:
+            within &= env_margins[k] > release  # released where the scene is within contact_release_mm
+        near = np.flatnonzero(within)
         if len(near):
             steps.append(t)
             rows.append(near)

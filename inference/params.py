@@ -29,11 +29,13 @@ Every field has the paper's default (or a documented choice where the paper is s
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     hinge_smoothing_mm: 0.5               # the hinge's smoothing length (inference.factors.clearance_error)
     # the demonstrated contacts held at the grasp: f_4t on the margins to the object (inference.contact)
-    precision_contact_steps: 0            # the last steps that hold them, precision grasps (0: none)
+    precision_contact_steps: 15           # the last steps that hold them, precision grasps (0: none)
     power_contact_steps: 15               # ... power grasps
     contact_reach_mm: 10.0                # spheres of tau_r this near the object (beyond its clearance) hold
     contact_std_mm: 2.0                   # R_t = contact_std^2 I
     contact_release_mm: 20.0              # but not a sphere this near the table's or an obstacle's clearance
+    precision_contact_release: step       # ... nor, for precision grasps, the rest of that sphere's step
+    power_contact_release: sphere         # ... power grasps: the sphere alone
     # joint limits by expectation propagation (with solve(..., joint_limits=...); ours, see model.py)
     joint_limit_min_probability: 1.0e-4   # a joint whose marginal puts more beyond a limit gets a site
     joint_limit_damping: 0.5              # fraction of a site update applied (natural parameters)
@@ -96,6 +98,10 @@ _INT_FIELDS = (
 )
 _MAY_BE_ZERO = ("by_scene_steps", "precision_contact_steps", "power_contact_steps")
 
+CONTACT_RELEASES = ("sphere", "step")
+"""The values of ``<grasp type>_contact_release``: where the scene is near a held sphere, release that
+sphere alone or every sphere of its step (:mod:`inference.contact`)."""
+
 SIGMA_M_MAPS = (*FINGERTIP_COV_MAPS, "by_scene")
 """The values of ``fingertip_cov_map``: the two maps of :func:`assets.sah.config_cov_from_fingertip_cov`
 and their per-step blend by the scene."""
@@ -126,11 +132,13 @@ class VariationParams:
     self_clearance_mm: float = 5.0
     constraint_std_mm: float = 2.0
     hinge_smoothing_mm: float = 0.5
-    precision_contact_steps: int = 0
+    precision_contact_steps: int = 15
     power_contact_steps: int = 15
     contact_reach_mm: float = 10.0
     contact_std_mm: float = 2.0
     contact_release_mm: float = 20.0
+    precision_contact_release: str = "step"
+    power_contact_release: str = "sphere"
     joint_limit_min_probability: float = 1e-4
     joint_limit_damping: float = 0.5
     joint_limit_max_iterations: int = 50
@@ -165,6 +173,12 @@ class VariationParams:
             if f.name == "fingertip_cov_map":
                 if value not in SIGMA_M_MAPS:
                     raise InputError(f"{f.name}: expected one of {', '.join(SIGMA_M_MAPS)}, found {value!r}")
+                continue
+            if f.name in ("precision_contact_release", "power_contact_release"):
+                if value not in CONTACT_RELEASES:
+                    raise InputError(
+                        f"{f.name}: expected one of {', '.join(CONTACT_RELEASES)}, found {value!r}"
+                    )
                 continue
             if f.name in ("clearance_sites", "clearance_site_object", "backward_sweep"):
                 if not isinstance(value, bool):
@@ -212,11 +226,15 @@ class VariationParams:
         """The last steps that hold the demonstrated contacts (:mod:`inference.contact`) for a grasp type."""
         return int(self._of_grasp_type(grasp_type, "contact_steps"))
 
+    def contact_release(self, grasp_type: str) -> str:
+        """``sphere`` or ``step``: what a held sphere near the table or an obstacle releases."""
+        return str(self._of_grasp_type(grasp_type, "contact_release"))
+
     def object_clearance_m(self, grasp_type: str) -> float:
         """The clearance of the hand's spheres from the grasped object [m] for a grasp type."""
         return self._of_grasp_type(grasp_type, "object_clearance_mm") * 1e-3
 
-    def _of_grasp_type(self, grasp_type: str, name: str) -> float:
+    def _of_grasp_type(self, grasp_type: str, name: str) -> float | str:
         """The field ``<grasp_type>_<name>``.
 
         Raises:
