@@ -6,7 +6,7 @@ hinge adds nothing where a margin is positive: near the grasp the marginals keep
 Sigma_r + Sigma_m towards the object, and most draws of the last steps enter it or close far from it.
 Section V-B of the paper enforces "a specific range of constraint values, given by the mean r_t and
 covariance R_t" by a prior f_4t on C_t = phi(X_t). Here, at each of the last
-``params.contact_steps(grasp_type)`` steps (by default 15 for either grasp type),
+``params.contact_steps(grasp_type)`` steps (by default 15 for power grasps, none for precision grasps),
 C_t is the margins to the grasped object (distance - object clearance - radius, as in
 :mod:`inference.clearance`) of the spheres that tau_r, placed at the scene's object pose, brings within
 ``params.contact_reach_mm`` of it; r_t is their values in tau_r clipped to ``[0, reach]`` (the

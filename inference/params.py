@@ -29,7 +29,7 @@ Every field has the paper's default (or a documented choice where the paper is s
     constraint_std_mm: 2.0                # R_t = constraint_std^2, the std of each hinge row
     hinge_smoothing_mm: 0.5               # the hinge's smoothing length (inference.factors.clearance_error)
     # the demonstrated contacts held at the grasp: f_4t on the margins to the object (inference.contact)
-    precision_contact_steps: 15           # the last steps that hold them, precision grasps (0: none)
+    precision_contact_steps: 0            # the last steps that hold them, precision grasps (0: none)
     power_contact_steps: 15               # ... power grasps
     contact_reach_mm: 10.0                # spheres of tau_r this near the object (beyond its clearance) hold
     contact_std_mm: 2.0                   # R_t = contact_std^2 I
@@ -132,7 +132,7 @@ class VariationParams:
     self_clearance_mm: float = 5.0
     constraint_std_mm: float = 2.0
     hinge_smoothing_mm: float = 0.5
-    precision_contact_steps: int = 15
+    precision_contact_steps: int = 0
     power_contact_steps: int = 15
     contact_reach_mm: float = 10.0
     contact_std_mm: float = 2.0

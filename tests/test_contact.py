@@ -70,41 +70,47 @@ def test_rows_are_the_spheres_of_tau_r_within_reach_of_the_object(make_traj):
     no_object = HandClearance(cover, (ball,), None, self_pairs=np.zeros((0, 2), dtype=int))
     assert contact_plan(traj, params, no_object, O) is None
     assert contact_plan(traj, dataclasses.replace(params, precision_contact_steps=0), clearance, O) is None
-    # by default either grasp type holds its last 15 steps (here all 8, from the first within reach)
+    # by default the power grasps hold their last 15 steps, the precision grasps none
     default = VariationParams()
-    for grasp_type in ("precision", "power"):
-        held = contact_plan(dataclasses.replace(traj, grasp_type=grasp_type), default, clearance, O)
-        assert held is not None and 7 in held.steps and held.steps.min() >= 0
+    assert contact_plan(traj, default, clearance, O) is None
+    power = contact_plan(dataclasses.replace(traj, grasp_type="power"), default, clearance, O)
+    assert power is not None and 7 in power.steps and power.steps.min() >= 0
+
+
+def _held_at_the_last_step(make_traj, params):
+    """A 4-step trajectory, a ball beside its last hand: the cover, the ball, the object pose, the cover's
+    world centres at the last step and the sphere rows held there without a table."""
+    traj = make_traj(n=4, seed=4)
+    cover, ball = _ball_beside(traj, 3, 0.004)
+    O = traj.T_world_object_mean
+    W, J = O @ traj.T_object_wrist[3], traj.joints[3]
+    centres = cover.centers(J) @ W[:3, :3].T + W[:3, 3]
+    return traj, cover, ball, O, centres, contact_plan(traj, params, _clearance(cover, ball), O).rows[0]
+
+
+def _under_a_table(cover, ball, centres, top_m):
+    """The clearance with a table (a box) whose top is at ``top_m``, and each sphere's dense margin to its
+    10 mm clearance [m]."""
+    T_world_box = np.eye(4)
+    T_world_box[2, 3] = top_m - 0.05
+    box = BoxField(np.array([1.0, 1.0, 0.05]), T_world_box)
+    clearance = HandClearance(
+        cover, (box,), ball, clearance_m=0.010, object_clearance_m=OBJECT_CLEARANCE_M, active_margin_m=0.005
+    )
+    return clearance, box.distance(centres)[0] - 0.010 - cover.radii_m
 
 
 def test_a_contact_where_the_scene_is_gives_way(make_traj):
     """A table (a box) under tau_r's last hand, its top placed so that half the held spheres come within
     ``contact_release_mm`` of its 10 mm clearance: exactly the spheres whose dense distance to the box is
-    beyond the release stay held (for a release of 20 mm and of 0)."""
-    traj = make_traj(n=4, seed=4)
-    cover, ball = _ball_beside(traj, 3, 0.004)
-    O = traj.T_world_object_mean
+    beyond the release stay held (for a release of 20 mm and of 0; the sphere rule)."""
     params = dataclasses.replace(
         PARAMS, precision_contact_steps=1, contact_reach_mm=10.0, precision_contact_release="sphere"
     )
-    W, J = O @ traj.T_object_wrist[3], traj.joints[3]
-    centres = cover.centers(J) @ W[:3, :3].T + W[:3, 3]
-    held_all = contact_plan(traj, params, _clearance(cover, ball), O).rows[0]
+    traj, cover, ball, O, centres, held_all = _held_at_the_last_step(make_traj, params)
     bottoms = centres[held_all, 2] - cover.radii_m[held_all] - 0.010  # lowest point less the clearance
     for release_mm in (20.0, 0.0):
-        top = np.median(bottoms) - release_mm * 1e-3
-        T_world_box = np.eye(4)
-        T_world_box[2, 3] = top - 0.05
-        box = BoxField(np.array([1.0, 1.0, 0.05]), T_world_box)
-        clearance = HandClearance(
-            cover,
-            (box,),
-            ball,
-            clearance_m=0.010,
-            object_clearance_m=OBJECT_CLEARANCE_M,
-            active_margin_m=0.005,
-        )
-        to_box = box.distance(centres)[0] - 0.010 - cover.radii_m
+        clearance, to_box = _under_a_table(cover, ball, centres, np.median(bottoms) - release_mm * 1e-3)
         plan = contact_plan(traj, dataclasses.replace(params, contact_release_mm=release_mm), clearance, O)
         kept = held_all[to_box[held_all] > release_mm * 1e-3]
         assert 0 < len(kept) < len(held_all)
@@ -115,37 +121,19 @@ def test_a_precision_step_whose_contact_the_scene_occupies_holds_none(make_traj)
     """The table of the test above, released by step (precision grasps): with its top where the lowest held
     sphere is 1 mm inside its 10 mm clearance the step holds nothing; 1 mm lower, every held sphere outside
     the clearance, the step holds all of them, those within ``contact_release_mm`` of it too."""
-    traj = make_traj(n=4, seed=4)
-    cover, ball = _ball_beside(traj, 3, 0.004)
-    O = traj.T_world_object_mean
     params = dataclasses.replace(PARAMS, precision_contact_steps=1, contact_reach_mm=10.0)
     assert params.contact_release("precision") == "step" and params.contact_release("power") == "sphere"
-    W, J = O @ traj.T_object_wrist[3], traj.joints[3]
-    centres = cover.centers(J) @ W[:3, :3].T + W[:3, 3]
-    held_all = contact_plan(traj, params, _clearance(cover, ball), O).rows[0]
+    traj, cover, ball, O, centres, held_all = _held_at_the_last_step(make_traj, params)
     lowest = np.min(centres[held_all, 2] - cover.radii_m[held_all]) - 0.010  # its point less the clearance
-    for inside_mm, expected in ((1.0, None), (-1.0, held_all)):
-        T_world_box = np.eye(4)
-        T_world_box[2, 3] = lowest + inside_mm * 1e-3 - 0.05
-        box = BoxField(np.array([1.0, 1.0, 0.05]), T_world_box)
-        clearance = HandClearance(
-            cover,
-            (box,),
-            ball,
-            clearance_m=0.010,
-            object_clearance_m=OBJECT_CLEARANCE_M,
-            active_margin_m=0.005,
-        )
-        to_box = box.distance(centres)[0] - 0.010 - cover.radii_m
-        assert (to_box[held_all].min() < 0) == (expected is None)
+    for inside_mm in (1.0, -1.0):
+        clearance, to_box = _under_a_table(cover, ball, centres, lowest + inside_mm * 1e-3)
+        assert (to_box[held_all].min() < 0) == (inside_mm > 0)
         plan = contact_plan(traj, params, clearance, O)
-        if expected is None:
+        if inside_mm > 0:
             assert plan is None
         else:
-            assert np.any(
-                to_box[held_all] < params.contact_release_mm * 1e-3
-            )  # the sphere rule would drop it
-            np.testing.assert_array_equal(plan.rows[0], expected)
+            assert np.any(to_box[held_all] < params.contact_release_mm * 1e-3)  # the sphere rule drops these
+            np.testing.assert_array_equal(plan.rows[0], held_all)
 
 
 def test_a_strategy_on_another_object_holds_the_contacts_it_demonstrated(make_traj):
