@@ -105,11 +105,11 @@ def contact_plan(
     steps, rows, targets = [], [], []
     for k, t in enumerate(last):
         within = margins[k] < reach
-        if env_margins is not None and whole_step:
-            if np.any(env_margins[k][within] <= 0.0):
+        if env_margins is not None:
+            if not whole_step:
+                within &= env_margins[k] > release  # released where the scene is within contact_release_mm
+            elif np.any(env_margins[k][within] <= 0.0):
                 continue  # the scene occupies one of this step's contacts: the step holds none
-        elif env_margins is not None:
-            within &= env_margins[k] > release  # released where the scene is within contact_release_mm
         near = np.flatnonzero(within)
         if len(near):
             steps.append(t)
