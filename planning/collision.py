@@ -12,6 +12,7 @@ than its 13 mm fingertip radius. ``q_a`` itself is assumed free (it is a tree no
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -53,21 +54,33 @@ class CollisionChecker:
 
     def edge_points(self, q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
         """The configurations checked along the edge, excluding ``q_a`` and including ``q_b``: (n, 19)."""
+        n, point = self._edge(q_a, q_b)
+        return np.array([point(i) for i in range(1, n + 1)])
+
+    def _edge(self, q_a: np.ndarray, q_b: np.ndarray) -> tuple[int, Callable[[int], np.ndarray]]:
+        """The number ``n`` of configurations checked along the edge and ``point(i)``, the i-th of them
+        (1..n, the n-th at ``q_b``)."""
         q_a = np.asarray(q_a, dtype=float)
         q_b = np.asarray(q_b, dtype=float)
         dp = q_b[POS] - q_a[POS]
+        edge = _SPACE.edge(q_a, q_b)
         n = math.ceil(
             max(
                 math.sqrt(float(dp @ dp)) / self.position_resolution_m,
-                _SPACE.angle(q_a, q_b) / self.rotation_resolution_rad,
+                edge.angle() / self.rotation_resolution_rad,
                 float(np.max(np.abs(q_b[JOINTS] - q_a[JOINTS]))) / self.joint_resolution_rad,
                 1.0,
             )
         )
         if n <= 8:  # most planner steps: 2-3 points, cheaper one by one in plain floats
-            return np.array([_SPACE.interpolate(q_a, q_b, (i + 1) / n) for i in range(n)])
-        return _SPACE.interpolate_many(q_a, q_b, np.arange(1, n + 1) / n)
+            return n, lambda i: edge.at(i / n)
+        many = _SPACE.interpolate_many(q_a, q_b, np.arange(1, n + 1) / n)
+        return n, lambda i: many[i - 1]
 
     def is_edge_free(self, q_a: np.ndarray, q_b: np.ndarray) -> bool:
-        """Whether every configuration along the edge from ``q_a`` to ``q_b`` is free."""
-        return all(self.is_free(q) for q in self.edge_points(q_a, q_b))
+        """Whether every configuration along the edge from ``q_a`` to ``q_b`` is free.
+
+        The far end is checked first: an edge from a free node is most often blocked there, so a blocked
+        edge usually costs one query instead of all of its points."""
+        n, point = self._edge(q_a, q_b)
+        return self.is_free(point(n)) and all(self.is_free(point(i)) for i in range(1, n))

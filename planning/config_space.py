@@ -5,7 +5,11 @@ the 19-D hand space and on a toy 2-D space in the tests:
 
 * ``features(q (N, d)) -> (N, F)``: a representation in which :meth:`distance_to` is cheap;
 * ``distance_to(features (N, F), q (d,)) -> (N,)`` and ``distance(q_a, q_b) -> float``;
-* ``interpolate(q_a, q_b, s) -> q``, ``s`` in [0, 1].
+* ``nearest(features (N, F), q (d,)) -> int``: the index of the least :meth:`distance_to` (its first on
+  ties);
+* ``interpolate(q_a, q_b, s) -> q``, ``s`` in [0, 1];
+* ``steer(q_a, q_b, step) -> (q, reached)``: ``q_b`` if it is within ``step``, else the configuration
+  ``step`` along the way.
 
 Distances are dimensionless: one unit is one "step" of the planner.
 """
@@ -39,6 +43,13 @@ class EuclideanSpace:
     def distance_to(self, features: np.ndarray, q: np.ndarray) -> np.ndarray:
         return np.linalg.norm(features - self.features(q)[0], axis=1)
 
+    def nearest(self, features: np.ndarray, q: np.ndarray) -> int:
+        return int(np.argmin(self.distance_to(features, q)))
+
+    def steer(self, q_a: np.ndarray, q_b: np.ndarray, step: float) -> tuple[np.ndarray, bool]:
+        d = self.distance(q_a, q_b)
+        return (q_b, True) if d <= step else (self.interpolate(q_a, q_b, step / d), False)
+
     def distance(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         return float(np.linalg.norm((np.asarray(q_a) - np.asarray(q_b)) / np.asarray(self.scale)))
 
@@ -67,13 +78,22 @@ class HandConfigSpace:
     joint_step_rad: float = np.deg2rad(10.0)
 
     def features(self, q: np.ndarray) -> np.ndarray:
-        q = np.atleast_2d(np.asarray(q, dtype=float))
+        q = np.asarray(q, dtype=float)
+        if q.ndim == 1:  # one node, as the planner adds them: without the per-row list
+            lin = np.concatenate([q[POS] / self.position_step_m, q[JOINTS] / self.joint_step_rad])
+            out = np.empty((1, 21))
+            out[0, :16], out[0, 16:20], out[0, 20] = lin, quat_of_rotvec(*q[ROT]), (lin * lin).sum()
+            return out
+        q = np.atleast_2d(q)
         quat = np.array([quat_of_rotvec(*r) for r in q[:, ROT].tolist()]).reshape(-1, 4)
         lin = np.concatenate([q[:, POS] / self.position_step_m, q[:, JOINTS] / self.joint_step_rad], axis=1)
         return np.concatenate([lin, quat, (lin * lin).sum(axis=1, keepdims=True)], axis=1)
 
     def distance_to(self, features: np.ndarray, q: np.ndarray) -> np.ndarray:
-        f = self.features(q)[0]
+        return self._distance_to(features, self.features(q)[0])
+
+    def _distance_to(self, features: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """The distances (N,) from the nodes' ``features`` (N, F) to the features ``f`` (F,) of one q."""
         # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b over the scaled position and joints (two matrix-vector
         # products instead of an (N, 16) difference); where cancellation could show, the difference
         lin_sq = features[:, -1] + f[-1] - 2.0 * (features[:, :16] @ f[:16])
@@ -94,6 +114,23 @@ class HandConfigSpace:
         angle /= self.rotation_step_rad
         return np.sqrt(np.maximum(lin_sq, 0.0) + angle * angle)
 
+    def nearest(self, features: np.ndarray, q: np.ndarray) -> int:
+        """The index of the node nearest to ``q``, exactly :meth:`distance_to`'s argmin, by a bound.
+
+        With ``c = |qa . qb|`` the wrist angle is ``2 acos(c) >= sqrt(8 (1 - c))`` (as ``1 - cos x <= x^2 /
+        2``), so ``lin^2 + 8 (1 - c) / rotation_step^2`` bounds every squared distance from below without
+        an arccos. The exact distance is computed only for the nodes whose bound is below the exact
+        distance of the bound's own argmin (a few in a grown tree).
+        """
+        f = self.features(q)[0]
+        lin_sq = features[:, -1] + f[-1] - 2.0 * (features[:, :16] @ f[:16])
+        bound = lin_sq + (8.0 / self.rotation_step_rad**2) * (1.0 - np.abs(features[:, 16:20] @ f[16:20]))
+        i0 = int(np.argmin(bound))
+        d0 = self._distance_to(features[i0 : i0 + 1], f)[0]
+        # the bound's rounding (|a|^2 + |b|^2 - 2 a.b, ~1e-16 of |a|^2 ~ 1e4) is far inside the slack
+        candidates = np.flatnonzero(bound <= d0 * d0 + 1e-9 * (1.0 + d0 * d0 + f[-1]))
+        return int(candidates[np.argmin(self._distance_to(features[candidates], f))])
+
     def distance(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         a = np.asarray(q_a, dtype=float)
         b = np.asarray(q_b, dtype=float)
@@ -106,19 +143,60 @@ class HandConfigSpace:
 
     def angle(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
         """The geodesic angle [rad] between the wrist orientations of ``q_a`` and ``q_b``."""
-        qa, qb = quat_of_rotvec(*q_a[ROT]), quat_of_rotvec(*q_b[ROT])
-        sign = -1.0 if sum(x * y for x, y in zip(qa, qb, strict=True)) < 0 else 1.0
+        return _Geodesic(q_a, q_b).angle()
+
+    def steer(self, q_a: np.ndarray, q_b: np.ndarray, step: float) -> tuple[np.ndarray, bool]:
+        """``(q_b, True)`` if ``q_b`` is within ``step`` of ``q_a``, else ``(the configuration step units
+        along the edge, False)``: :meth:`distance` and :meth:`interpolate` on one :class:`_Geodesic`."""
+        edge = _Geodesic(q_a, q_b)
+        dp, dj = edge.delta[POS], edge.delta[JOINTS]
+        angle = edge.angle() / self.rotation_step_rad
+        d = math.sqrt(
+            float(dp @ dp) / self.position_step_m**2 + float(dj @ dj) / self.joint_step_rad**2 + angle * angle
+        )
+        return (q_b, True) if d <= step else (edge.at(step / d), False)
+
+    def interpolate(self, q_a: np.ndarray, q_b: np.ndarray, s: float) -> np.ndarray:
+        return _Geodesic(q_a, q_b).at(float(s))
+
+    def edge(self, q_a: np.ndarray, q_b: np.ndarray) -> _Geodesic:
+        """The edge from ``q_a`` to ``q_b``: its wrist angle and its points in plain floats, the two
+        orientations converted once (a collision check takes several points of one edge)."""
+        return _Geodesic(q_a, q_b)
+
+    def interpolate_many(self, q_a: np.ndarray, q_b: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Configurations (n, 19) at fractions ``s`` (n,) of the way from ``q_a`` to ``q_b``."""
+        q_a = np.asarray(q_a, dtype=float)
+        q_b = np.asarray(q_b, dtype=float)
+        s = np.asarray(s, dtype=float).reshape(-1)
+        out = q_a + s[:, None] * (q_b - q_a)
+        out[:, ROT] = slerp_rotvec(q_a[ROT], q_b[ROT], s)
+        return out
+
+
+class _Geodesic:
+    """The edge between two hand configurations (19,): linear in position and joints, a slerp of the wrist
+    orientation; the two orientations' quaternions computed once, in plain floats."""
+
+    def __init__(self, q_a: np.ndarray, q_b: np.ndarray):
+        self.q_a = np.asarray(q_a, dtype=float)
+        self.delta = np.asarray(q_b, dtype=float) - self.q_a
+        self.qa = quat_of_rotvec(*self.q_a[ROT])
+        self.qb = quat_of_rotvec(*q_b[ROT])
+        self.dot = sum(x * y for x, y in zip(self.qa, self.qb, strict=True))
+
+    def angle(self) -> float:
+        """The geodesic angle [rad] between the two wrist orientations (4 atan2(|a - b|, |a + b|))."""
+        sign = -1.0 if self.dot < 0 else 1.0
+        qa, qb = self.qa, self.qb
         minus = math.sqrt(sum((x - sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
         plus = math.sqrt(sum((x + sign * y) ** 2 for x, y in zip(qa, qb, strict=True)))
         return 4.0 * math.atan2(minus, plus)
 
-    def interpolate(self, q_a: np.ndarray, q_b: np.ndarray, s: float) -> np.ndarray:
-        q_a = np.asarray(q_a, dtype=float)
-        q_b = np.asarray(q_b, dtype=float)
-        s = float(s)
-        out = q_a + s * (q_b - q_a)
-        qa, qb = quat_of_rotvec(*q_a[ROT]), quat_of_rotvec(*q_b[ROT])
-        dot = sum(x * y for x, y in zip(qa, qb, strict=True))
+    def at(self, s: float) -> np.ndarray:
+        """The configuration (19,) at the fraction ``s`` of the way."""
+        out = self.q_a + s * self.delta
+        qa, qb, dot = self.qa, self.qb, self.dot
         if dot < 0:
             qb, dot = tuple(-y for y in qb), -dot
         if dot > 1.0 - 1e-12:
@@ -128,15 +206,6 @@ class HandConfigSpace:
             wa, wb = math.sin((1.0 - s) * omega), math.sin(s * omega)
             quat = [wa * x + wb * y for x, y in zip(qa, qb, strict=True)]
         out[ROT] = _rotvec(*quat)
-        return out
-
-    def interpolate_many(self, q_a: np.ndarray, q_b: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """Configurations (n, 19) at fractions ``s`` (n,) of the way from ``q_a`` to ``q_b``."""
-        q_a = np.asarray(q_a, dtype=float)
-        q_b = np.asarray(q_b, dtype=float)
-        s = np.asarray(s, dtype=float).reshape(-1)
-        out = q_a + s[:, None] * (q_b - q_a)
-        out[:, ROT] = slerp_rotvec(q_a[ROT], q_b[ROT], s)
         return out
 
 

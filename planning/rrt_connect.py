@@ -157,7 +157,7 @@ class _Forest:
         return i
 
     def nearest(self, q: np.ndarray) -> int:
-        return int(np.argmin(self.space.distance_to(self.f[: self.count], q)))
+        return self.space.nearest(self.f[: self.count], q)
 
     def _grow(self) -> None:
         """Doubles the arrays' capacity."""
@@ -253,9 +253,7 @@ def rrt_connect(
         reached = added = False
         while nodes() < config.max_nodes:
             q_near = f.q[i]
-            d = space.distance(q_near, y)
-            reached = d <= config.step
-            q_new = y if reached else space.interpolate(q_near, y, config.step / d)
+            q_new, reached = space.steer(q_near, y, config.step)
             if not edge_free(q_near, q_new):
                 reached = False
                 break

@@ -37,3 +37,28 @@ def test_edge_blocked_when_it_crosses_the_obstacle(x_end, free):
     b[0] = x_end
     assert cc.is_edge_free(np.zeros(19), b) is free
     assert cc.checks >= 1
+
+
+class SlabWorld:
+    """Free unless the wrist x-coordinate lies in [0.02, 0.03] m."""
+
+    def is_free(self, q):
+        return not 0.02 <= q[0] <= 0.03
+
+
+def test_an_edge_free_at_both_ends_is_blocked_in_between():
+    """The far end is checked first, then every point between: a slab crossed mid-edge blocks it."""
+    cc = CollisionChecker(SlabWorld())
+    b = np.zeros(19)
+    b[0] = 0.05
+    assert cc.is_edge_free(np.zeros(19), b) is False
+    b[0] = 0.015
+    assert cc.is_edge_free(np.zeros(19), b) is True
+
+
+def test_an_edge_blocked_at_its_far_end_costs_one_query():
+    cc = CollisionChecker(HalfSpaceWorld())
+    b = np.zeros(19)
+    b[0] = 0.2  # 40 points at 5 mm; the last is in the half space
+    assert cc.is_edge_free(np.zeros(19), b) is False
+    assert cc.checks == 1

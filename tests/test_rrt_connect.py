@@ -146,6 +146,38 @@ def test_hand_space_fast_paths_equal_scipy_rotations():
             np.testing.assert_allclose(row, [space.distance(a, b) for a in a_all], rtol=1e-9, atol=1e-7)
 
 
+def test_hand_space_nearest_is_the_brute_force_argmin():
+    """``nearest`` prunes by a lower bound (no arccos for most nodes); it must return exactly the first
+    argmin of ``distance_to`` over every node, for trees from one node to thousands, with coincident
+    nodes (ties), queries on a node, 1e-6 from one, and far from all."""
+    space = HandConfigSpace()
+    rng = np.random.default_rng(3)
+    for _ in range(120):
+        n = int(rng.integers(1, 2000))
+        spread = rng.choice([1e-3, 0.05, 0.5, 3.0])
+        q = rng.normal(size=(n, 19)) * spread
+        q[rng.integers(n, size=n // 10)] = q[0]  # ties: the first index must win
+        feats = space.features(q)
+        query = q[rng.integers(n)] + rng.normal(size=19) * spread * rng.choice([0.0, 1e-6, 0.1, 1.0])
+        assert space.nearest(feats, query) == int(np.argmin(space.distance_to(feats, query)))
+
+
+def test_hand_space_steer_is_distance_then_interpolate():
+    space = HandConfigSpace()
+    rng = np.random.default_rng(4)
+    for step in (0.5, 1.0, 3.0):
+        for _ in range(50):
+            a = rng.normal(size=19) * 0.3
+            b = a + rng.normal(size=19) * rng.choice([0.001, 0.02, 0.3])
+            q, reached = space.steer(a, b, step)
+            d = space.distance(a, b)
+            assert reached == (d <= step)
+            expected = b if reached else space.interpolate(a, b, step / d)
+            np.testing.assert_array_equal(q, expected)
+            if not reached:
+                assert space.distance(a, q) == pytest.approx(step, rel=1e-9)
+
+
 def test_goal_samples_inside_the_object_are_evaluated_where_the_extension_stops():
     """Last-step samples of a grasp lie partly inside the object; an extension towards one stops at the
     surface, which is where closing the hand makes a grasp. ``goal_radius`` admits that node."""
