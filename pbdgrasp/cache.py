@@ -30,6 +30,7 @@ __all__ = [
     "CACHE_VERSION",
     "MODEL_SOURCES",
     "RETARGET_SOURCES",
+    "SCENE_GRASP_SOURCES",
     "Strategy",
     "float_kernels",
     "prepare_strategy",
@@ -86,6 +87,16 @@ RETARGET_SOURCES = (
     *MODEL_SOURCES,
     "planning/autograsp.py",
     "planning/grasp_quality.py",
+)
+#: The final grasp chosen again in a scene other than the demonstration's (pbdgrasp.scene_grasp): it
+#: closes the hand and solves the model again, so the model's key holds those sources too.
+SCENE_GRASP_SOURCES = (
+    "pbdgrasp/scene_grasp.py",
+    "pbdgrasp/strategy.py",
+    "planning/closing_pool.py",
+    "planning/autograsp.py",
+    "planning/grasp_quality.py",
+    "retarget/final_grasp.py",
 )
 #: Sources inside those folders that no cached step runs: the demonstration generator only writes the
 #: demonstration files, whose contents are part of the retargeting key.
@@ -270,6 +281,7 @@ def prepare_strategy(
     from planning.scene import load_scene
     from retarget.trajectory import Trajectory
 
+    from .scene_grasp import SceneGraspConfig, adapt_final_grasp
     from .scene_model import learn_in_scene
 
     cache = Path(cache_dir)
@@ -277,10 +289,12 @@ def prepare_strategy(
     scene = load_scene(row)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
+    adapt = traj.meta.get("scene") != scene.name  # a scene other than the demonstration's
     model_key = _digest(
         [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), float_kernels(), _sha256_file(traj_path)]
         + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]
         + [_sha256_file(f) for f in _scene_files(scene)]
+        + ([_source_digest(SCENE_GRASP_SOURCES), repr(SceneGraspConfig())] if adapt else [])
     )
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
     if not model_path.is_file():
@@ -290,6 +304,10 @@ def prepare_strategy(
         if on_stage:
             on_stage(f"{row}: solving the variation model in its scene (T = {traj.num_steps})")
         model = learn_in_scene(traj, scene, params, cache / "fields")
+        if adapt:
+            if on_stage:
+                on_stage(f"{row}: choosing the final grasp again in the scene")
+            model = adapt_final_grasp(model, scene, params, cache / "fields")
         model.save(model_path)
     mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))
     return Strategy(row, scene.strategy, traj_path, model_path, _sha256_file(model_path), mse_mm2)
