@@ -34,7 +34,18 @@ def add_arguments(p) -> None:
         metavar="MODEL.model.npz",
         help="model file to write",
     )
+    add_scene_grasp_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def add_scene_grasp_argument(p) -> None:
+    """``--no-scene-grasp`` (infer, learn)."""
+    p.add_argument(
+        "--no-scene-grasp",
+        action="store_true",
+        help="in a scene other than the one the trajectory was retargeted in, keep the final grasp the "
+        "model solves to (default: choose it again there, pbdgrasp.scene_grasp, as Table I does)",
+    )
 
 
 def run(args) -> int:
@@ -50,15 +61,17 @@ def run(args) -> int:
             warn(
                 f"{args.trajectory} is a strategy for {traj.object!r}; the scene holds {scene.object.name!r}"
             )
-    model = infer(traj, scene, params, no_progress=args.no_progress)
+    model = infer(traj, scene, params, no_progress=args.no_progress, scene_grasp=not args.no_scene_grasp)
     model.save(args.output)
     print(summary(model, args.output, time.perf_counter() - start))
     return 0
 
 
-def infer(traj, scene, params, no_progress: bool = False):
+def infer(traj, scene, params, no_progress: bool = False, scene_grasp: bool = True):
     """The variation model of ``traj``: in ``scene`` (its object prior and clearance factors) or, with
-    ``scene=None``, with the joint limits only; a progress bar of the solver's iterations."""
+    ``scene=None``, with the joint limits only; a progress bar of the solver's iterations. With
+    ``scene_grasp``, in a scene other than the one ``traj`` was retargeted in, the final grasp is chosen
+    again there (:func:`pbdgrasp.scene_grasp.adapt_final_grasp`)."""
     from tqdm import tqdm
 
     bar = tqdm(desc="solving the variation model", unit="it", disable=no_progress or None, leave=False)
@@ -76,9 +89,28 @@ def infer(traj, scene, params, no_progress: bool = False):
             f"scene {scene.name}: distance fields and the clearance factors",
             enabled=False if no_progress else None,
         )
-        return learn_in_scene(traj, scene, params, on_iteration=tick)
+        model = learn_in_scene(traj, scene, params, on_iteration=tick)
     finally:
         bar.close()
+    if scene_grasp and traj.meta.get("scene") != scene.name:
+        from pbdgrasp.scene_grasp import adapt_final_grasp
+
+        stage(f"scene {scene.name}: choosing the final grasp again", enabled=False if no_progress else None)
+        model = adapt_final_grasp(model, scene, params)
+        print(scene_grasp_line(model.source.meta["scene_grasp"], scene.name))
+    return model
+
+
+def scene_grasp_line(found: dict, scene_name: str) -> str:
+    """The line that says what choosing the final grasp again in a scene did (``meta["scene_grasp"]``)."""
+    before = found["before"]
+    kept = next((t for t in found["tried"] if t["candidate"] == found.get("candidate")), None)
+    after = f"; with it {kept['valid_fraction']:.0%}, {kept['least_free_fraction']:.0%}" if kept else ""
+    return (
+        f"final grasp in {scene_name}: {'chosen again' if kept else 'kept as solved'} "
+        f"({len(found['tried'])} candidate(s) solved again; last-step valid, least free: "
+        f"{before['valid_fraction']:.0%}, {before['least_free_fraction']:.0%}{after})"
+    )
 
 
 def summary(model, out, elapsed_s: float) -> str:

@@ -11,6 +11,7 @@ import time
 
 from ._args import add_processes_argument, int_in, output_file, seed
 from ._out import stage, warn
+from .infer import add_scene_grasp_argument
 from .retarget import add_final_grasp_argument
 
 NAME = "learn"
@@ -39,6 +40,7 @@ def add_arguments(p) -> None:
         "--seed", type=seed, default=0, help="the seed of the refined final grasp's draws (and provenance)"
     )
     add_final_grasp_argument(p)
+    add_scene_grasp_argument(p)
     add_processes_argument(p)
     p.add_argument("--no-progress", action="store_true", help="hide the progress bars")
 
@@ -71,7 +73,9 @@ def run(args) -> int:
         traj.save(args.trajectory)
     print(retarget.summary(demo, traj, result, time.perf_counter() - start, args.trajectory or "(not kept)"))
     start = time.perf_counter()
-    model = infer.infer(traj, scene, VariationParams(), no_progress=args.no_progress)
+    model = infer.infer(
+        traj, scene, VariationParams(), no_progress=args.no_progress, scene_grasp=not args.no_scene_grasp
+    )
     model.save(args.output)
     print(infer.summary(model, args.output, time.perf_counter() - start))
     return 0
