@@ -11,10 +11,13 @@ from the model's own draws, and solves the model again about it:
    P(O), the configuration about the last mean; joints clipped to the limits), each closed and scored.
 2. **Candidates**: the last mean and the ``candidates`` best-closing probe draws (object frame). Each is
    scored by the expected quality ``E[phi_o]`` of ``draws`` draws of the last covariance about it
-   (:class:`pbdgrasp.strategy.ExpectedQuality`, common random numbers); the best is the new final grasp.
-3. **Re-solve**: tau_r's last ``blend_steps`` steps are blended onto it (:func:`retarget.final_grasp.
-   blend_final_change`), tau_r's last step keeping its offset from the model's last mean, so that the
-   re-solved mean lands near the candidate; the model is solved again in the scene.
+   (:class:`pbdgrasp.strategy.ExpectedQuality`, common random numbers). The ``resolves`` best that score
+   above the mean go on.
+3. **Re-solve**: for each, tau_r's last ``blend_steps`` steps are blended onto it
+   (:func:`retarget.final_grasp.blend_final_change`), tau_r's last step keeping its offset from the
+   model's last mean, so that the re-solved mean lands near the candidate; the model is solved again in
+   the scene. Sigma_r and the fingertip errors stay tau_r's: the change is deliberate, not a mapping
+   error (as for the refined final grasp).
 4. **Keep** the model, of the original and the ``resolves`` best candidates re-solved, whose draws the
    planner can use most: the largest product of the last step's valid fraction (draws that close to
    epsilon >= 0.05) and the least collision-free fraction of any step, both measured by
