@@ -281,7 +281,7 @@ def prepare_strategy(
     from planning.scene import load_scene
     from retarget.trajectory import Trajectory
 
-    from .scene_grasp import SceneGraspConfig, adapt_final_grasp
+    from .scene_grasp import SceneGraspConfig, adapt_final_grasp, chooses_again
     from .scene_model import learn_in_scene
 
     cache = Path(cache_dir)
@@ -289,7 +289,7 @@ def prepare_strategy(
     scene = load_scene(row)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
-    adapt = traj.meta.get("scene") != scene.name  # a scene other than the demonstration's
+    adapt = chooses_again(traj, scene)
     model_key = _digest(
         [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), float_kernels(), _sha256_file(traj_path)]
         + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]

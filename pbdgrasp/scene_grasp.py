@@ -50,7 +50,7 @@ from .inspect import inspect_model
 from .scene_model import learn_in_scene
 from .strategy import ExpectedQuality
 
-__all__ = ["SceneGraspConfig", "adapt_final_grasp"]
+__all__ = ["SceneGraspConfig", "adapt_final_grasp", "chooses_again"]
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +83,12 @@ class SceneGraspConfig:
         counts += (self.blend_steps,)
         if min(counts) < 1 or self.seed < 0:
             raise InputError(f"SceneGraspConfig: counts must be >= 1 and seed >= 0, found {self}")
+
+
+def chooses_again(traj, scene: Scene) -> bool:
+    """Whether the final grasp of ``traj`` (a :class:`~retarget.trajectory.Trajectory`) is chosen again in
+    ``scene``: a scene other than the one it was retargeted in (its ``meta["scene"]``)."""
+    return traj.meta.get("scene") != scene.name
 
 
 def _expected(closer, scene: Scene, cov: np.ndarray, n: int, seed: int) -> ExpectedQuality:

@@ -94,9 +94,8 @@ class HandConfigSpace:
 
     def _distance_to(self, features: np.ndarray, f: np.ndarray) -> np.ndarray:
         """The distances (N,) from the nodes' ``features`` (N, F) to the features ``f`` (F,) of one q."""
-        # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b over the scaled position and joints (two matrix-vector
-        # products instead of an (N, 16) difference); where cancellation could show, the difference
-        lin_sq = features[:, -1] + f[-1] - 2.0 * (features[:, :16] @ f[:16])
+        # where the cancellation in _lin_sq could show, the difference
+        lin_sq = _lin_sq(features, f)
         near = np.flatnonzero(lin_sq < 1e-6 * (features[:, -1] + f[-1] + 1.0))
         if near.size:
             diff = features[near, :16] - f[:16]
@@ -123,8 +122,8 @@ class HandConfigSpace:
         distance of the bound's own argmin (a few in a grown tree).
         """
         f = self.features(q)[0]
-        lin_sq = features[:, -1] + f[-1] - 2.0 * (features[:, :16] @ f[:16])
-        bound = lin_sq + (8.0 / self.rotation_step_rad**2) * (1.0 - np.abs(features[:, 16:20] @ f[16:20]))
+        cos_half = np.abs(features[:, 16:20] @ f[16:20])
+        bound = _lin_sq(features, f) + (8.0 / self.rotation_step_rad**2) * (1.0 - cos_half)
         i0 = int(np.argmin(bound))
         d0 = self._distance_to(features[i0 : i0 + 1], f)[0]
         # the bound's rounding (|a|^2 + |b|^2 - 2 a.b, ~1e-16 of |a|^2 ~ 1e4) is far inside the slack
@@ -132,11 +131,12 @@ class HandConfigSpace:
         return int(candidates[np.argmin(self._distance_to(features[candidates], f))])
 
     def distance(self, q_a: np.ndarray, q_b: np.ndarray) -> float:
-        a = np.asarray(q_a, dtype=float)
-        b = np.asarray(q_b, dtype=float)
-        dp = a[POS] - b[POS]
-        dj = a[JOINTS] - b[JOINTS]
-        angle = self.angle(a, b) / self.rotation_step_rad
+        return self._length(_Geodesic(q_a, q_b))
+
+    def _length(self, edge: _Geodesic) -> float:
+        """The edge's length in planner steps (the metric of the class docstring)."""
+        dp, dj = edge.delta[POS], edge.delta[JOINTS]
+        angle = edge.angle() / self.rotation_step_rad
         return math.sqrt(
             float(dp @ dp) / self.position_step_m**2 + float(dj @ dj) / self.joint_step_rad**2 + angle * angle
         )
@@ -149,11 +149,7 @@ class HandConfigSpace:
         """``(q_b, True)`` if ``q_b`` is within ``step`` of ``q_a``, else ``(the configuration step units
         along the edge, False)``: :meth:`distance` and :meth:`interpolate` on one :class:`_Geodesic`."""
         edge = _Geodesic(q_a, q_b)
-        dp, dj = edge.delta[POS], edge.delta[JOINTS]
-        angle = edge.angle() / self.rotation_step_rad
-        d = math.sqrt(
-            float(dp @ dp) / self.position_step_m**2 + float(dj @ dj) / self.joint_step_rad**2 + angle * angle
-        )
+        d = self._length(edge)
         return (q_b, True) if d <= step else (edge.at(step / d), False)
 
     def interpolate(self, q_a: np.ndarray, q_b: np.ndarray, s: float) -> np.ndarray:
@@ -172,6 +168,12 @@ class HandConfigSpace:
         out = q_a + s[:, None] * (q_b - q_a)
         out[:, ROT] = slerp_rotvec(q_a[ROT], q_b[ROT], s)
         return out
+
+
+def _lin_sq(features: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """|a - b|^2 (N,) over the scaled position and joints as |a|^2 + |b|^2 - 2 a.b: two matrix-vector
+    products instead of an (N, 16) difference; it cancels where a and b nearly coincide."""
+    return features[:, -1] + f[-1] - 2.0 * (features[:, :16] @ f[:16])
 
 
 class _Geodesic:

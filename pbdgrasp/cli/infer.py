@@ -92,9 +92,9 @@ def infer(traj, scene, params, no_progress: bool = False, scene_grasp: bool = Tr
         model = learn_in_scene(traj, scene, params, on_iteration=tick)
     finally:
         bar.close()
-    if scene_grasp and traj.meta.get("scene") != scene.name:
-        from pbdgrasp.scene_grasp import adapt_final_grasp
+    from pbdgrasp.scene_grasp import adapt_final_grasp, chooses_again
 
+    if scene_grasp and chooses_again(traj, scene):
         stage(f"scene {scene.name}: choosing the final grasp again", enabled=False if no_progress else None)
         model = adapt_final_grasp(model, scene, params)
         print(scene_grasp_line(model.source.meta["scene_grasp"], scene.name))
