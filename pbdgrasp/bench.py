@@ -10,8 +10,9 @@ asserted in tests.
   reference (the information matrix at the solution, ``hessian`` with an explicit ordering, inverted by
   numpy), with the largest relative difference of the two as a check;
 * scene inference: per Table I row, the variation model in the row's scene (clearance factors on the SAH's
-  sphere cover and the scene's distance fields, LM, joint limits): solve time, iterations, convergence
-  (quick mode: the in-code ham approach in the ham scene);
+  sphere cover and the scene's distance fields, LM, joint limits): solve time, iterations, convergence,
+  and the time of choosing the final grasp again in the scene (quick mode: the in-code ham approach in the
+  ham scene, a few draws);
 * samples per second of the mixture P(Y) (:class:`inference.sampler.MixtureSampler`, beta = 0.05);
 * collision: configurations (uniform in the ham scene's bounds) and edges (between consecutive P(Y) draws
   of the ham strategy) checked per second;
@@ -51,6 +52,7 @@ from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
 from .bench_planning import PLANNING_SCENES, bench_planning
 from .cache import prepare_trajectory
 from .paper import ROWS
+from .scene_grasp import SceneGraspConfig
 
 __all__ = [
     "BenchConfig",
@@ -197,23 +199,30 @@ def bench_inference(
     return {"rows": rows}
 
 
-def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_dir: Path | None) -> dict:
+def bench_scene_inference(
+    rows: Sequence[str], trajectory_of: Callable, cache_dir: Path | None, scene_grasp=None
+) -> dict:
     """Per row, the variation model in the row's scene (:func:`pbdgrasp.scene_model.learn_in_scene`): the
     solve's wall time with the scene's distance fields built (their build time apart), its LM iterations,
-    convergence and constrained steps.
+    convergence and constrained steps; then the final grasp chosen again in the scene
+    (:func:`pbdgrasp.scene_grasp.adapt_final_grasp`, as Table I builds its models): its wall time and
+    whether it kept a re-solved model.
 
     Args:
         rows: scene names.
         trajectory_of: ``row -> Trajectory``, e.g. the row's retargeted strategy.
         cache_dir: the distance fields' cache is ``cache_dir / "fields"`` (None: in memory only).
+        scene_grasp: its :class:`~pbdgrasp.scene_grasp.SceneGraspConfig` (None: the default).
     """
     from inference.params import VariationParams
     from planning.scene import load_scene
     from planning.scene_fields import scene_fields
 
+    from .scene_grasp import adapt_final_grasp
     from .scene_model import learn_in_scene
 
     params = VariationParams()
+    scene_grasp = scene_grasp or SceneGraspConfig()
     fields_dir = None if cache_dir is None else cache_dir / "fields"
     out = {}
     for row in rows:
@@ -223,6 +232,9 @@ def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_di
         solve_s, model = _timed(
             lambda traj=traj, scene=scene: learn_in_scene(traj, scene, params, fields_dir), 1
         )
+        grasp_s, adapted = _timed(
+            lambda m=model, scene=scene: adapt_final_grasp(m, scene, params, fields_dir, scene_grasp), 1
+        )
         out[row] = {
             "T": int(model.num_steps),
             "solve_s": solve_s,
@@ -230,6 +242,8 @@ def bench_scene_inference(rows: Sequence[str], trajectory_of: Callable, cache_di
             "iterations": int(model.iterations),
             "converged": bool(model.converged),
             "constrained_steps": int(np.sum(model.constrained)),
+            "scene_grasp_s": grasp_s,
+            "scene_grasp_kept": bool(adapted.source.meta["scene_grasp"]["kept"]),
         }
         log.info("bench scene inference %s: %s", row, out[row])
     return out
@@ -376,7 +390,9 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
             return Trajectory.load(path)
 
         rows = ROWS
-    out["scene_inference"] = bench_scene_inference(rows, trajectory_of, None if q else config.cache_dir)
+    grasp = SceneGraspConfig(probe_draws=16, candidates=2, draws=4, accept_draws=8, resolves=1) if q else None
+    fields = None if q else config.cache_dir
+    out["scene_inference"] = bench_scene_inference(rows, trajectory_of, fields, grasp)
     say("sampler")
     out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
     say("collision")

@@ -88,8 +88,8 @@ RETARGET_SOURCES = (
     "planning/autograsp.py",
     "planning/grasp_quality.py",
 )
-#: The final grasp chosen again in a scene other than the demonstration's (pbdgrasp.scene_grasp): it
-#: closes the hand and solves the model again, so the model's key holds those sources too.
+#: The final grasp chosen again in the row's scene (pbdgrasp.scene_grasp): it closes the hand and solves
+#: the model again, so the model's key holds those sources too.
 SCENE_GRASP_SOURCES = (
     "pbdgrasp/scene_grasp.py",
     "pbdgrasp/strategy.py",
@@ -281,7 +281,7 @@ def prepare_strategy(
     from planning.scene import load_scene
     from retarget.trajectory import Trajectory
 
-    from .scene_grasp import SceneGraspConfig, adapt_final_grasp, chooses_again
+    from .scene_grasp import SceneGraspConfig, adapt_final_grasp
     from .scene_model import learn_in_scene
 
     cache = Path(cache_dir)
@@ -289,12 +289,11 @@ def prepare_strategy(
     scene = load_scene(row)
     traj = Trajectory.load(traj_path)
     params = VariationParams()
-    adapt = chooses_again(traj, scene)
     model_key = _digest(
         [f"infer v{CACHE_VERSION}", _source_digest(MODEL_SOURCES), float_kernels(), _sha256_file(traj_path)]
         + [json.dumps(params.to_dict(), sort_keys=True), _sha256_file(assets.hand_urdf("sah"))]
         + [_sha256_file(f) for f in _scene_files(scene)]
-        + ([_source_digest(SCENE_GRASP_SOURCES), repr(SceneGraspConfig())] if adapt else [])
+        + [_source_digest(SCENE_GRASP_SOURCES), repr(SceneGraspConfig())]
     )
     model_path = cache / f"{row}-{model_key[:16]}.model.npz"
     if not model_path.is_file():
@@ -304,10 +303,9 @@ def prepare_strategy(
         if on_stage:
             on_stage(f"{row}: solving the variation model in its scene (T = {traj.num_steps})")
         model = learn_in_scene(traj, scene, params, cache / "fields")
-        if adapt:
-            if on_stage:
-                on_stage(f"{row}: choosing the final grasp again in the scene")
-            model = adapt_final_grasp(model, scene, params, cache / "fields")
+        if on_stage:
+            on_stage(f"{row}: choosing the final grasp again in the scene")
+        model = adapt_final_grasp(model, scene, params, cache / "fields")
         model.save(model_path)
     mse_mm2 = float(np.mean(np.asarray(traj.fingertip_rmse_mm) ** 2))
     return Strategy(row, scene.strategy, traj_path, model_path, _sha256_file(model_path), mse_mm2)

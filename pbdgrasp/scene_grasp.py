@@ -1,11 +1,11 @@
-"""The final grasp chosen again in a new scene (our addition to sections V-VII).
+"""The final grasp chosen again in the scene the model is solved in (our addition to sections V-VII).
 
-A strategy's final grasp is refined in the scene it was demonstrated in (:mod:`retarget.final_grasp`).
-Carried into another scene (obstacles, another object), the variation model moves the grasp by its
-constraint factors, which keep the hand out of the scene but do not ask whether the hand, closed there,
-holds the object: in the jam jar in a hole the model lifts the hand above the block, and the thumb then
-closes past the jar in half of the draws. :func:`adapt_final_grasp` chooses the grasp again in the scene,
-from the model's own draws, and solves the model again about it:
+A strategy's final grasp is refined in the scene it was demonstrated in, on tau_r and its covariance
+(:mod:`retarget.final_grasp`). The variation model then moves the grasp by its constraint factors, which
+keep the hand out of the scene but do not ask whether the hand, closed there, holds the object: in the jam
+jar in a hole the model lifts the hand above the block, and the thumb then closes past the jar in half of
+the draws. :func:`adapt_final_grasp` chooses the grasp again in the scene, from the solved model's own
+draws, and solves the model again about it:
 
 1. **Probe**: ``probe_draws`` draws of the model's last marginal in the scene (the object's pose drawn from
    P(O), the configuration about the last mean; joints clipped to the limits), each closed and scored.
@@ -23,7 +23,14 @@ from the model's own draws, and solves the model again about it:
    epsilon >= 0.05) and the least collision-free fraction of any step, both measured by
    :func:`pbdgrasp.inspect.inspect_model` with the same generator for every model. A candidate whose
    last step closes better but whose approach collides (the blend sweeps the fingers through the scene)
-   is not kept for its grasp alone.
+   is not kept for its grasp alone. A re-solved model is kept only where its product beats the
+   original's by ``margin_se`` standard errors of the difference (:func:`product_se`, the two fractions
+   as binomial proportions of ``accept_draws`` draws): a tie within the draws' noise keeps the model GTSAM
+   solved from tau_r.
+
+It runs in any scene, the demonstration's own included: there tau_r's final grasp was refined on tau_r's
+covariance before the model was solved, and the solved marginal (its clearances, its smoothing) can sit
+elsewhere.
 
 The result records what happened in its trajectory's ``meta["scene_grasp"]``. Probe, candidates and
 acceptance are deterministic for a given ``seed``, and the same on any number of closing processes.
@@ -50,7 +57,7 @@ from .inspect import inspect_model
 from .scene_model import learn_in_scene
 from .strategy import ExpectedQuality
 
-__all__ = ["SceneGraspConfig", "adapt_final_grasp", "chooses_again"]
+__all__ = ["SceneGraspConfig", "adapt_final_grasp", "product_se"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +74,8 @@ class SceneGraspConfig:
             keep a re-solved one.
         resolves: the best candidates (by expected quality, above the mean's) solved again.
         blend_steps: the last steps of tau_r blended onto the new final grasp (the refined final grasp's 20).
+        margin_se: how many standard errors of the difference a re-solved model's product must beat the
+            original's by to be kept.
         seed: the seed of the probe's and the scores' standard normals.
     """
 
@@ -76,19 +85,20 @@ class SceneGraspConfig:
     accept_draws: int = 200
     resolves: int = 3
     blend_steps: int = 20
+    margin_se: float = 1.0
     seed: int = 0
 
     def __post_init__(self):
         counts = (self.probe_draws, self.candidates, self.draws, self.accept_draws, self.resolves)
         counts += (self.blend_steps,)
-        if min(counts) < 1 or self.seed < 0:
-            raise InputError(f"SceneGraspConfig: counts must be >= 1 and seed >= 0, found {self}")
+        if min(counts) < 1 or self.seed < 0 or not self.margin_se >= 0:
+            raise InputError(f"SceneGraspConfig: counts must be >= 1, seed and margin_se >= 0, found {self}")
 
 
-def chooses_again(traj, scene: Scene) -> bool:
-    """Whether the final grasp of ``traj`` (a :class:`~retarget.trajectory.Trajectory`) is chosen again in
-    ``scene``: a scene other than the one it was retargeted in (its ``meta["scene"]``)."""
-    return traj.meta.get("scene") != scene.name
+def product_se(valid: float, free: float, n: int) -> float:
+    """The standard error of ``valid * free``, two fractions of ``n`` draws each taken as independent
+    binomial proportions (the delta method): sqrt((free^2 v(1-v) + v^2 f(1-f)) / n)."""
+    return float(np.sqrt((free**2 * valid * (1 - valid) + valid**2 * free * (1 - free)) / n))
 
 
 def _expected(closer, scene: Scene, cov: np.ndarray, n: int, seed: int) -> ExpectedQuality:
@@ -163,7 +173,10 @@ def adapt_final_grasp(
         resolved = learn_in_scene(moved, scene, params, cache_dir)
         after = measure(resolved)
         info["tried"].append({"candidate": pick, "valid_fraction": after[0], "least_free_fraction": after[1]})
-        if after[0] * after[1] > best_score:
+        margin = config.margin_se * np.hypot(
+            product_se(*before, config.accept_draws), product_se(*after, config.accept_draws)
+        )
+        if after[0] * after[1] > max(best_score, before[0] * before[1] + margin):
             best_score, adapted = after[0] * after[1], resolved
             info.update(kept=True, candidate=pick)
     info["time_s"] = time.perf_counter() - start

@@ -31,7 +31,8 @@ def test_quick_bench_json_has_every_section_and_key(quick):
         assert set(row) == {"T", "solve_ms", "marginals_ms", "dense_ms", "dense_over_gtsam", "max_rel_diff"}
         assert row["solve_ms"] > 0 and row["dense_ms"] > 0
     assert set(quick["scene_inference"]["ham"]) == {
-        "T", "solve_s", "fields_s", "iterations", "converged", "constrained_steps",
+        "T", "solve_s", "fields_s", "iterations", "converged", "constrained_steps", "scene_grasp_s",
+        "scene_grasp_kept",
     }  # fmt: skip
     assert quick["sampler"]["samples_per_s"] > 0 and quick["sampler"]["numpy_normals_19d_per_s"] > 0
     assert set(quick["collision"]) >= {"configs_per_s", "edges_per_s"}

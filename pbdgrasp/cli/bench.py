@@ -96,13 +96,16 @@ def format_table(r: dict) -> str:
         )
     lines += [
         "",
-        "scene inference (clearance factors, LM, joint limits; the distance fields built apart)",
-        f"  {'row':<20} {'T':>4} {'solve s':>8} {'fields s':>9} {'LM its':>7} {'converged':>10}",
+        "scene inference (clearance factors, LM, joint limits; the distance fields built apart; then the",
+        "final grasp chosen again in the scene: its time, and whether a re-solved model was kept)",
+        f"  {'row':<20} {'T':>4} {'solve s':>8} {'fields s':>9} {'LM its':>7} {'converged':>10} "
+        f"{'grasp s':>8} {'kept':>5}",
     ]
     for row, c in r["scene_inference"].items():
         lines.append(
             f"  {row:<20} {c['T']:>4} {c['solve_s']:>8.1f} {c['fields_s']:>9.1f} {c['iterations']:>7} "
-            f"{'yes' if c['converged'] else 'NO':>10}"
+            f"{'yes' if c['converged'] else 'NO':>10} {c['scene_grasp_s']:>8.1f} "
+            f"{'yes' if c['scene_grasp_kept'] else 'no':>5}"
         )
     lines += [
         "",

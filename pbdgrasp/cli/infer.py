@@ -43,8 +43,8 @@ def add_scene_grasp_argument(p) -> None:
     p.add_argument(
         "--no-scene-grasp",
         action="store_true",
-        help="in a scene other than the one the trajectory was retargeted in, keep the final grasp the "
-        "model solves to (default: choose it again there, pbdgrasp.scene_grasp, as Table I does)",
+        help="keep the final grasp the model solves to in the scene (default: choose it again there, "
+        "pbdgrasp.scene_grasp, as Table I does)",
     )
 
 
@@ -70,8 +70,8 @@ def run(args) -> int:
 def infer(traj, scene, params, no_progress: bool = False, scene_grasp: bool = True):
     """The variation model of ``traj``: in ``scene`` (its object prior and clearance factors) or, with
     ``scene=None``, with the joint limits only; a progress bar of the solver's iterations. With
-    ``scene_grasp``, in a scene other than the one ``traj`` was retargeted in, the final grasp is chosen
-    again there (:func:`pbdgrasp.scene_grasp.adapt_final_grasp`)."""
+    ``scene_grasp`` and a scene, the final grasp is chosen again there
+    (:func:`pbdgrasp.scene_grasp.adapt_final_grasp`)."""
     from tqdm import tqdm
 
     bar = tqdm(desc="solving the variation model", unit="it", disable=no_progress or None, leave=False)
@@ -92,9 +92,9 @@ def infer(traj, scene, params, no_progress: bool = False, scene_grasp: bool = Tr
         model = learn_in_scene(traj, scene, params, on_iteration=tick)
     finally:
         bar.close()
-    from pbdgrasp.scene_grasp import adapt_final_grasp, chooses_again
+    from pbdgrasp.scene_grasp import adapt_final_grasp
 
-    if scene_grasp and chooses_again(traj, scene):
+    if scene_grasp:
         stage(f"scene {scene.name}: choosing the final grasp again", enabled=False if no_progress else None)
         model = adapt_final_grasp(model, scene, params)
         print(scene_grasp_line(model.source.meta["scene_grasp"], scene.name))
