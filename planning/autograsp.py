@@ -271,8 +271,13 @@ def _reduce_patch(points: np.ndarray, normals: np.ndarray, merge_radius_m: float
 
     With ``max_points == 1`` the result is the centroid and the renormalised mean normal. Otherwise
     points closer than ``merge_radius_m`` are merged greedily (mean point, renormalised mean normal),
-    then the most distant points are kept (farthest-point order starting from the farthest pair).
+    then the most distant points are kept (farthest-point order starting from the farthest pair). The
+    points are taken in lexicographic order of (point, normal), so the result does not depend on the
+    order pybullet reports them in, which for an object of many convex pieces (the mugs) changes with
+    the world's history.
     """
+    order = np.lexsort(np.column_stack([points, normals]).T[::-1])
+    points, normals = points[order], normals[order]
     groups: list[list[int]] = []
     for i in range(len(points)):
         for g in groups:
