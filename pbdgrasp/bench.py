@@ -52,7 +52,7 @@ from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
 from .bench_planning import PLANNING_SCENES, bench_planning
 from .cache import prepare_trajectory
 from .paper import ROWS
-from .scene_grasp import SceneGraspConfig
+from .scene_grasp import SceneGraspConfig, adapt_final_grasp
 
 __all__ = [
     "BenchConfig",
@@ -200,7 +200,10 @@ def bench_inference(
 
 
 def bench_scene_inference(
-    rows: Sequence[str], trajectory_of: Callable, cache_dir: Path | None, scene_grasp=None
+    rows: Sequence[str],
+    trajectory_of: Callable,
+    cache_dir: Path | None,
+    scene_grasp: SceneGraspConfig,
 ) -> dict:
     """Per row, the variation model in the row's scene (:func:`pbdgrasp.scene_model.learn_in_scene`): the
     solve's wall time with the scene's distance fields built (their build time apart), its LM iterations,
@@ -212,17 +215,15 @@ def bench_scene_inference(
         rows: scene names.
         trajectory_of: ``row -> Trajectory``, e.g. the row's retargeted strategy.
         cache_dir: the distance fields' cache is ``cache_dir / "fields"`` (None: in memory only).
-        scene_grasp: its :class:`~pbdgrasp.scene_grasp.SceneGraspConfig` (None: the default).
+        scene_grasp: the final grasp's settings.
     """
     from inference.params import VariationParams
     from planning.scene import load_scene
     from planning.scene_fields import scene_fields
 
-    from .scene_grasp import adapt_final_grasp
     from .scene_model import learn_in_scene
 
     params = VariationParams()
-    scene_grasp = scene_grasp or SceneGraspConfig()
     fields_dir = None if cache_dir is None else cache_dir / "fields"
     out = {}
     for row in rows:
@@ -390,8 +391,8 @@ def run_bench(config: BenchConfig = BenchConfig(), progress=None) -> dict:
             return Trajectory.load(path)
 
         rows = ROWS
-    grasp = SceneGraspConfig(probe_draws=16, candidates=2, draws=4, accept_draws=8, resolves=1) if q else None
-    fields = None if q else config.cache_dir
+    quick_grasp = SceneGraspConfig(probe_draws=16, candidates=2, draws=4, accept_draws=8, resolves=1)
+    fields, grasp = (None, quick_grasp) if q else (config.cache_dir, SceneGraspConfig())
     out["scene_inference"] = bench_scene_inference(rows, trajectory_of, fields, grasp)
     say("sampler")
     out["sampler"] = bench_sampler(model, 100_000 if q else 1_000_000, 1 if q else 3, rngs[1])
