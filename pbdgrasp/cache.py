@@ -74,6 +74,7 @@ MODEL_SOURCES = (
     "planning/scene_fields.py",
     *_HAND_SOURCES,
     "planning/world.py",
+    "planning/world_bodies.py",
     "planning/hand_urdf.py",
     "planning/scene.py",
     "planning/_pybullet.py",

@@ -159,10 +159,10 @@ class HandCloser:
         info = [pb.getJointInfo(self.hand_id, j, physicsClientId=self.client) for j in range(n)]
         joint_name = [i[1].decode() for i in info]
         parent = [i[16] for i in info]
-        link_names = {-1: self.world.base_name} | {j: info[j][12].decode() for j in range(n)}
+        link_names = {j: info[j][12].decode() for j in range(n)}  # the floating joints' links never touch
         # a distal joint follows its middle joint 1:1: moving it counts as moving the middle joint
         follows = {f"{f}_dist": f"{f}_mid" for f in sah.FINGERS}
-        stops = {-1: np.zeros(len(closing), bool)}
+        stops = {}
         for j in range(n):
             mask = np.zeros(len(closing), bool)
             k = j

@@ -16,12 +16,58 @@ from assets.errors import InputError
 from assets.q_layout import JOINT_NAMES
 
 __all__ = [
+    "FLOATING_JOINTS",
     "default_excluded_pairs",
+    "floating_urdf",
     "hand_joint_limits",
     "hand_joint_names",
     "hand_rest_joints",
     "urdf_joints",
 ]
+
+
+#: the joints that carry a hand's root link in the pybullet world: prismatic along the world's x, y and z
+#: from a fixed anchor, then spherical (the root link's orientation, a quaternion)
+FLOATING_JOINTS = ("floating_x", "floating_y", "floating_z", "floating_rotation")
+
+_INERTIAL = (
+    '<inertial><mass value="0.001"/>'
+    '<inertia ixx="1e-9" iyy="1e-9" izz="1e-9" ixy="0" ixz="0" iyz="0"/></inertial>'
+)
+
+
+def floating_urdf(urdf: Path) -> str:
+    """The text of a hand's URDF with its root link carried by :data:`FLOATING_JOINTS` from a fixed anchor
+    (links ``floating_anchor``, ``floating_x``, ``floating_y``, ``floating_z``: no geometry).
+
+    pybullet sets the base pose of a floating body and its joints in two calls, each of which runs the
+    forward kinematics and moves every link's collision shape; with the wrist pose as joints, one
+    ``resetJointStatesMultiDof`` sets the whole hand (:meth:`planning.world.World.set_q`).
+
+    Raises:
+        InputError: the URDF has no single root link or already uses a floating joint name.
+    """
+    root = ET.parse(urdf).getroot()
+    children = {j.find("child").get("link") for j in root.iter("joint")}
+    roots = [link.get("name") for link in root.iter("link") if link.get("name") not in children]
+    names = {j.get("name") for j in root.iter("joint")} | {link.get("name") for link in root.iter("link")}
+    if len(roots) != 1 or names & {*FLOATING_JOINTS, "floating_anchor"}:
+        raise InputError(f"{urdf}: expected one root link and no floating_* names, found roots {roots}")
+    parent, chain = "floating_anchor", [f'<link name="floating_anchor">{_INERTIAL}</link>']
+    for name, axis in zip(FLOATING_JOINTS[:3], ("1 0 0", "0 1 0", "0 0 1"), strict=True):
+        chain.append(
+            f'<link name="{name}">{_INERTIAL}</link><joint name="{name}" type="prismatic">'
+            f'<parent link="{parent}"/><child link="{name}"/><axis xyz="{axis}"/>'
+            '<limit lower="-1000" upper="1000" effort="0" velocity="0"/></joint>'
+        )
+        parent = name
+    chain.append(
+        f'<joint name="{FLOATING_JOINTS[3]}" type="spherical"><parent link="{parent}"/>'
+        f'<child link="{roots[0]}"/><axis xyz="0 0 1"/></joint>'
+    )
+    for i, element in enumerate(ET.fromstring(f"<chain>{''.join(chain)}</chain>")):
+        root.insert(i, element)
+    return ET.tostring(root, encoding="unicode")
 
 
 def urdf_joints(urdf: Path) -> tuple[list[str], dict[str, tuple[str, float, float]]]:

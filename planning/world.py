@@ -3,9 +3,11 @@
 One :class:`World` owns one pybullet client in DIRECT mode (never the global default client); close it
 with :meth:`World.close` or use it as a context manager. Everything but the hand is a static body
 (mass 0; the objects and mesh obstacles as compounds of their exact convex pieces, so solids: see
-``assets/objects/build_objects.py``). The hand is loaded as a movable multibody that is
-never stepped, only teleported by :meth:`World.set_q`, so Bullet computes its contacts with the static
-bodies and, with ``URDF_USE_SELF_COLLISION``, between its own links (parent-child pairs excluded).
+``assets/objects/build_objects.py``). The hand hangs from a fixed anchor on three prismatic joints and a
+spherical one (:func:`planning.hand_urdf.floating_urdf`); it is never stepped, only teleported by
+:meth:`World.set_q` (one pybullet call for the wrist and the fingers), so Bullet computes its contacts with
+the static bodies and, with ``URDF_USE_SELF_COLLISION``, between its own links (parent-child pairs
+excluded).
 
 Collision query costs: ``pbdgrasp bench`` (docs/performance.md).
 """
@@ -13,28 +15,35 @@ Collision query costs: ``pbdgrasp bench`` (docs/performance.md).
 from __future__ import annotations
 
 import logging
+import math
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 import assets
 from assets.errors import InputError
-from assets.q_layout import JOINTS, POS, POSE, ROT
+from assets.q_layout import JOINTS, POSE
 from assets.se3 import quat_of_rotvec
 
 from ._pybullet import connect_direct, pb
 from .camera import default_camera, render_image
-from .hand_urdf import default_excluded_pairs, hand_joint_names, hand_rest_joints, urdf_joints
+from .hand_urdf import (
+    FLOATING_JOINTS,
+    default_excluded_pairs,
+    floating_urdf,
+    hand_joint_names,
+    hand_rest_joints,
+    urdf_joints,
+)
 from .scene import Scene, load_scene
 from .scene_checks import check_placement
+from .world_bodies import load_object, load_obstacle, load_table
 
 __all__ = ["Contact", "World"]
 
 log = logging.getLogger(__name__)
-
-_COLORS = {"table": (0.55, 0.42, 0.3, 1.0), "obstacle": (0.45, 0.55, 0.45, 1.0)}
 
 
 @dataclass(frozen=True)
@@ -56,10 +65,6 @@ class Contact:
     distance_m: float
 
 
-def _quat_xyzw(R: np.ndarray) -> list[float]:
-    return list(Rotation.from_matrix(R).as_quat())
-
-
 class World:
     """A pybullet world built from a scene, for collision and distance queries and pictures.
 
@@ -73,7 +78,9 @@ class World:
     Attributes:
         client: the pybullet client id.
         hand_id, object_id, table_id: body ids; obstacle_ids: tuple of body ids (scene order).
-        link_names: the hand's link names by pybullet link index (index -1, the wrist, is ``base_name``).
+        base_name: the hand's root link (the wrist); link_names: its other links in pybullet's order.
+            The hand hangs on floating joints (:func:`planning.hand_urdf.floating_urdf`), so pybullet link
+            indices on ``hand_id`` are :meth:`link_index`'s, not positions in ``link_names``.
         joint_names: the order of ``q[JOINTS]``.
     """
 
@@ -97,45 +104,42 @@ class World:
     def _build(self) -> None:
         c, s = self.client, self.scene
         pb.setAdditionalSearchPath(str(assets.ROOT), physicsClientId=c)
-        half = np.array(s.table.size_m) / 2
-        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=c)
-        vis = pb.createVisualShape(
-            pb.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=_COLORS["table"], physicsClientId=c
-        )
-        self.table_id = pb.createMultiBody(
-            0.0, shape, vis, s.table.T_world_table[:3, 3].tolist(), physicsClientId=c
-        )
+        self.table_id = load_table(c, s.table)
         self._names = {self.table_id: "table"}
-        self.object_id = self._load_object(s.object.name, s.T_world_object)
+        self.object_id = load_object(c, s.object.name, s.T_world_object)
         self._names[self.object_id] = s.object.name
         ids = []
         for ob in s.obstacles:
-            ids.append(self._load_obstacle(ob))
+            ids.append(load_obstacle(c, ob, s.path))
             self._names[ids[-1]] = ob.label
         self.obstacle_ids = tuple(ids)
         check_placement(self)
 
         urdf = assets.hand_urdf(self.hand)
         flags = pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
-        self.hand_id = pb.loadURDF(str(urdf), basePosition=[0, 0, 2.0], flags=flags, physicsClientId=c)
+        with tempfile.TemporaryDirectory() as tmp:  # the hand on floating joints (one call sets it all)
+            path = Path(tmp) / urdf.name
+            path.write_text(floating_urdf(urdf))
+            self.hand_id = pb.loadURDF(str(path), useFixedBase=True, flags=flags, physicsClientId=c)
         self._names[self.hand_id] = "hand"
         n = pb.getNumJoints(self.hand_id, physicsClientId=c)
         infos = [pb.getJointInfo(self.hand_id, i, physicsClientId=c) for i in range(n)]
-        self.base_name = pb.getBodyInfo(self.hand_id, physicsClientId=c)[0].decode()
-        self.link_names = [info[12].decode() for info in infos]
         index = {info[1].decode(): i for i, info in enumerate(infos)}
+        self._root_index = index[FLOATING_JOINTS[-1]]  # the root link's pybullet index; its links follow
+        self.base_name = infos[self._root_index][12].decode()
+        self.link_names = [info[12].decode() for info in infos[self._root_index + 1 :]]
         actuated, mimic = urdf_joints(urdf)
         self.joint_names = hand_joint_names(self.hand)
         self._q_index = np.array([index[name] for name in self.joint_names])
         self._mimic = [
             (index[m], self.joint_names.index(master), k, off) for m, (master, k, off) in mimic.items()
         ]
-        self._all_joints = [int(i) for i in self._q_index] + [m[0] for m in self._mimic]
-        dyn = pb.getDynamicsInfo(self.hand_id, -1, physicsClientId=c)
-        self._wrist_inertial = (dyn[3], dyn[4])  # pybullet's base pose is that of its inertial frame
+        self._all_joints = [index[name] for name in FLOATING_JOINTS] + [int(i) for i in self._q_index]
+        self._all_joints += [m[0] for m in self._mimic]
+        pb.resetJointState(self.hand_id, index["floating_z"], 2.0, physicsClientId=c)  # out of the way
         self._bodies = (self.table_id, self.object_id, *self.obstacle_ids)
         excluded = self._excluded if self._excluded is not None else default_excluded_pairs(self.hand)
-        links = {self.base_name: -1, **{name: i for i, name in enumerate(self.link_names)}}
+        links = {name: self.link_index(name) for name in (self.base_name, *self.link_names)}
         for a, b in excluded:
             if a not in links or b not in links:
                 raise InputError(
@@ -153,68 +157,6 @@ class World:
             len(self.obstacle_ids),
         )
 
-    def _load_object(self, name: str, T_world: np.ndarray, color=None) -> int:
-        c = self.client
-        body = pb.loadURDF(
-            str(assets.object_urdf(name)),
-            T_world[:3, 3].tolist(),
-            _quat_xyzw(T_world[:3, :3]),
-            useFixedBase=True,
-            physicsClientId=c,
-        )
-        if color is not None:
-            pb.changeVisualShape(body, -1, rgbaColor=color, physicsClientId=c)
-        return body
-
-    def _load_obstacle(self, ob) -> int:
-        c, T = self.client, ob.T_world_obstacle
-        pos, quat = T[:3, 3].tolist(), _quat_xyzw(T[:3, :3])
-        rgba = _COLORS["obstacle"]
-        if ob.type == "object":
-            return self._load_object(ob.name, T, color=rgba)
-        if ob.type == "box":
-            half = (np.array(ob.size_m) / 2).tolist()
-            col = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c)
-            vis = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=rgba, physicsClientId=c)
-        elif ob.type == "cylinder":
-            col = pb.createCollisionShape(
-                pb.GEOM_CYLINDER, radius=ob.radius_m, height=ob.height_m, physicsClientId=c
-            )
-            vis = pb.createVisualShape(
-                pb.GEOM_CYLINDER, radius=ob.radius_m, length=ob.height_m, rgbaColor=rgba, physicsClientId=c
-            )
-        else:
-            return self._load_mesh_obstacle(ob, pos, quat, rgba)
-        if col < 0:
-            raise InputError(f"obstacle {ob.label}: pybullet could not build its shape")
-        return pb.createMultiBody(0.0, col, vis, pos, quat, physicsClientId=c)
-
-    def _load_mesh_obstacle(self, ob, pos, quat, rgba) -> int:
-        c, scale = self.client, [ob.scale] * 3
-        try:
-            if ob.collision_file is not None:  # convex pieces, one OBJ object each: a solid compound
-                col = pb.createCollisionShape(
-                    pb.GEOM_MESH, fileName=str(ob.collision_file), meshScale=scale, physicsClientId=c
-                )
-            else:  # a surface only: links wholly inside it are not seen
-                col = pb.createCollisionShape(
-                    pb.GEOM_MESH,
-                    fileName=str(ob.file),
-                    meshScale=scale,
-                    flags=pb.GEOM_FORCE_CONCAVE_TRIMESH,
-                    physicsClientId=c,
-                )
-            vis = pb.createVisualShape(
-                pb.GEOM_MESH, fileName=str(ob.file), meshScale=scale, rgbaColor=rgba, physicsClientId=c
-            )
-        except pb.error:
-            raise InputError(
-                f"obstacles: {ob.label}: {ob.file.name} (or its collision file) is not a mesh pybullet can "
-                "read (OBJ, STL or DAE)",
-                self.scene.path,
-            ) from None
-        return pb.createMultiBody(0.0, col, vis, pos, quat, physicsClientId=c)
-
     # --------------------------------------------------------------------------------------------
     def set_q(self, q: np.ndarray) -> None:
         """Teleport the hand to ``q`` (dof,) = [wrist position (m), rotation vector (rad), joints (rad)].
@@ -224,16 +166,12 @@ class World:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.dof,):
             raise InputError(f"q: expected shape ({self.dof},) for hand {self.hand}, found {q.shape}")
-        if not np.all(np.isfinite(q)):
+        v = q.tolist()
+        if not math.isfinite(sum(v)):  # a NaN or an infinity anywhere
             raise InputError("q: non-finite value")
-        c = self.client
-        pos, quat = pb.multiplyTransforms(
-            q[POS].tolist(), list(quat_of_rotvec(*q[ROT])), *self._wrist_inertial, physicsClientId=c
-        )
-        pb.resetBasePositionAndOrientation(self.hand_id, pos, quat, physicsClientId=c)
-        joints = q[JOINTS]
-        values = [[float(v)] for v in joints] + [[k * float(joints[m]) + off] for _, m, k, off in self._mimic]
-        pb.resetJointStatesMultiDof(self.hand_id, self._all_joints, values, physicsClientId=c)
+        values = [[v[0]], [v[1]], [v[2]], list(quat_of_rotvec(*v[3:6]))] + [[x] for x in v[6:]]
+        values += [[k * v[6 + m] + off] for _, m, k, off in self._mimic]
+        pb.resetJointStatesMultiDof(self.hand_id, self._all_joints, values, physicsClientId=self.client)
         self.q = q.copy()
 
     def _contacts_raw(self, q):
@@ -257,10 +195,18 @@ class World:
             if cp[8] < 0.0:
                 key = (cp[3], cp[2], cp[4])
                 deepest[key] = max(deepest.get(key, 0.0), -cp[8])
-        return float(sum(deepest.values()))
+        return math.fsum(deepest.values())  # exactly rounded: the same whatever order pybullet reports
+
+    def link_index(self, name: str) -> int:
+        """The pybullet link index of the hand's link ``name`` (its root link, :attr:`base_name`, included),
+        for pybullet calls on :attr:`hand_id`."""
+        if name == self.base_name:
+            return self._root_index
+        return self._root_index + 1 + self.link_names.index(name)
 
     def link_name(self, index: int) -> str:
-        return self.base_name if index < 0 else self.link_names[index]
+        """The name of the hand's link at pybullet link index ``index``."""
+        return self.base_name if index == self._root_index else self.link_names[index - self._root_index - 1]
 
     def hand_contacts(self, q: np.ndarray | None = None, max_distance_m: float = 0.0) -> list[Contact]:
         """The hand's contacts at ``q`` (or at the current configuration) with distance <= ``max_distance_m``.
@@ -355,7 +301,7 @@ class World:
         closest: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for b in bodies:
             for p in pb.getClosestPoints(self.hand_id, b, max_distance_m, physicsClientId=self.client):
-                i = p[3] + 1
+                i = p[3] - self._root_index  # the root link first
                 if p[8] < out[i]:
                     out[i] = p[8]
                     closest[i] = (np.asarray(p[5], dtype=float), np.asarray(p[7], dtype=float))

@@ -77,13 +77,11 @@ def test_the_hand_meshes_sit_where_pybullet_puts_the_links():
     poses = hand_link_poses(np.asarray(HAM_GRASP_Q))
     with World("ham") as world:
         world.set_q(np.asarray(HAM_GRASP_Q))
-        index = {name: i for i, name in enumerate(world.link_names)} | {world.base_name: -1}
         for link, mesh in meshes.items():
             if not any(s.link == link for s in _collision_links()):
                 continue  # knuckle spheres: visual only, no AABB in pybullet's collision world
-            lo, hi = (
-                np.array(v) for v in pb.getAABB(world.hand_id, index[link], physicsClientId=world.client)
-            )
+            box = pb.getAABB(world.hand_id, world.link_index(link), physicsClientId=world.client)
+            lo, hi = (np.array(v) for v in box)
             ours = mesh.copy().apply_transform(poses[link]).bounds
             # the centres only: Bullet's box of a rotated capsule is the rotated box of its local box
             assert ((lo + hi) / 2) == pytest.approx((ours[0] + ours[1]) / 2, abs=1e-3), link

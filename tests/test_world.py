@@ -45,14 +45,14 @@ def test_set_q_places_links_as_the_kinematics_says(ham_arc):
         T_world_link = pose_from_q(q) @ np.stack([sah.fk(q[6:])[t] for t in sah.TIP_LINKS])
         for k, tip in enumerate(sah.TIP_LINKS):
             state = pb.getLinkState(
-                w.hand_id, w.link_names.index(tip), computeForwardKinematics=True, physicsClientId=w.client
+                w.hand_id, w.link_index(tip), computeForwardKinematics=True, physicsClientId=w.client
             )
             worst = max(worst, np.abs(np.array(state[4]) - T_world_link[k, :3, 3]).max())
         # the distal joints copy the middle ones
         for f in sah.FINGERS:
             dist = pb.getJointState(
                 w.hand_id,
-                w.link_names.index(f"{f}_distal")
+                w.link_index(f"{f}_distal")
                 if f"{f}_distal" in w.link_names
                 else _joint_index(w, f"{f}_dist"),
                 physicsClientId=w.client,
@@ -144,7 +144,8 @@ def test_signed_distance_sign_and_value(ham_arc):
     # clearance of the lowest point of the hand (pointing down) above the table
     q = q_down([0.3, 0.2, 1.0])
     w.set_q(q)
-    low = min(pb.getAABB(w.hand_id, i, physicsClientId=w.client)[0][2] for i in range(-1, len(w.link_names)))
+    links = (w.base_name, *w.link_names)
+    low = min(pb.getAABB(w.hand_id, w.link_index(n), physicsClientId=w.client)[0][2] for n in links)
     q[2] -= low - 0.02
     d0 = w.signed_distance(q)
     assert 0 < d0 and abs(d0 - 0.02) < AABB_MARGIN_M
@@ -211,8 +212,36 @@ def test_link_distance_gradients_match_central_differences(ham_arc):
 def test_set_q_validates(ham_arc):
     with pytest.raises(InputError, match=r"q: expected shape \(19,\)"):
         ham_arc.set_q(np.zeros(18))
-    with pytest.raises(InputError, match="non-finite"):
-        ham_arc.set_q(np.full(19, np.nan))
+    for bad in (np.nan, np.inf, -np.inf):
+        q = np.zeros(19)
+        q[7] = bad
+        with pytest.raises(InputError, match="non-finite"):
+            ham_arc.set_q(q)
+
+
+def test_the_floating_joints_put_the_wrist_at_its_pose(ham_arc):
+    """The wrist's link frame against pose_from_q, rotations up to pi (the hand hangs on floating joints)."""
+    w, rng = ham_arc, np.random.default_rng(3)
+    axes = rng.normal(size=(20, 3))
+    angles = np.r_[rng.uniform(0, np.pi, 17), 0.0, 1e-9, np.pi - 1e-9]
+    for axis, angle in zip(axes, angles, strict=True):
+        q = np.r_[rng.uniform(-0.5, 0.5, 3), angle * axis / np.linalg.norm(axis), sah.rest_joints()]
+        w.set_q(q)
+        state = pb.getLinkState(w.hand_id, w.link_index(w.base_name), physicsClientId=w.client)
+        T = pose_from_q(q)
+        assert np.abs(np.array(state[4]) - T[:3, 3]).max() < FK_TOL_M
+        R = np.array(pb.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+        assert np.abs(R - T[:3, :3]).max() < FK_TOL_M
+    assert w.link_name(w.link_index("index_distal")) == "index_distal"
+
+
+def test_floating_urdf_needs_one_root(tmp_path):
+    from planning.hand_urdf import floating_urdf
+
+    path = tmp_path / "two_roots.urdf"
+    path.write_text('<robot name="r"><link name="a"/><link name="b"/></robot>')
+    with pytest.raises(InputError, match="one root link"):
+        floating_urdf(path)
 
 
 def test_render_returns_an_image_showing_the_scene(ham_arc):

@@ -60,8 +60,8 @@ def reach_m(world) -> float:
     q[2] = 3.0
     world.set_q(q)
     tops = [
-        pb.getAABB(world.hand_id, i, physicsClientId=world.client)[1][2]
-        for i in range(-1, len(world.link_names))
+        pb.getAABB(world.hand_id, world.link_index(name), physicsClientId=world.client)[1][2]
+        for name in (world.base_name, *world.link_names)
     ]
     return max(tops) - 3.0
 
