@@ -12,7 +12,7 @@ asserted in tests.
 * scene inference: per Table I row, the variation model in the row's scene (clearance factors on the SAH's
   sphere cover and the scene's distance fields, LM, joint limits): solve time, iterations, convergence,
   and the time of choosing the final grasp again in the scene (quick mode: the in-code ham approach in the
-  ham scene, a few draws);
+  ham scene, a few draws). These two live in :mod:`pbdgrasp.bench_inference`;
 * samples per second of the mixture P(Y) (:class:`inference.sampler.MixtureSampler`, beta = 0.05);
 * collision: configurations (uniform in the ham scene's bounds) and edges (between consecutive P(Y) draws
   of the ham strategy) checked per second;
@@ -37,22 +37,21 @@ import os
 import platform
 import resource
 import time
-from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import gtsam
 import numpy as np
 
 from assets.errors import InputError
 from assets.q_layout import Q_DIM
 from planning.closing_pool import default_processes
 
-from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory
+from .bench_fixtures import HAM_GRASP_Q, quick_model, synthetic_trajectory, timed
+from .bench_inference import bench_inference, bench_scene_inference
 from .bench_planning import PLANNING_SCENES, bench_planning
 from .cache import prepare_trajectory
 from .paper import ROWS
-from .scene_grasp import SceneGraspConfig, adapt_final_grasp
+from .scene_grasp import SceneGraspConfig
 
 __all__ = [
     "BenchConfig",
@@ -108,16 +107,6 @@ class BenchConfig:
         object.__setattr__(self, "cache_dir", Path(self.cache_dir))
 
 
-def _timed(fn, repeats: int) -> tuple[float, object]:
-    """Median wall time [s] of ``repeats`` calls of ``fn()`` and the last result."""
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), out
-
-
 def _version(dist: str) -> str:
     try:
         return importlib.metadata.version(dist)
@@ -146,110 +135,6 @@ def machine_info() -> dict:
     }
 
 
-def _dense_marginals(graph, values, n: int) -> np.ndarray:
-    """(T, 19, 19) marginals of (W_t, J_t) from the dense inverse of the information matrix."""
-    from inference.graph import key_j, key_w
-
-    order = gtsam.Ordering()
-    for t in range(n):
-        order.push_back(key_w(t))
-        order.push_back(key_j(t))
-    info = graph.linearize(values).hessian(order)[0]
-    cov = np.linalg.inv(info)
-    idx = np.arange(n)[:, None] * Q_DIM + np.arange(Q_DIM)
-    return cov[idx[:, :, None], idx[:, None, :]]
-
-
-def bench_inference(
-    sizes=(25, 50, 100, 200), repeats: int = 3, rng: np.random.Generator | None = None
-) -> dict:
-    """Graph + solve + marginals per T, gtsam vs dense marginals (no scene).
-
-    Returns:
-        ``{"rows": [{T, solve_ms, marginals_ms, dense_ms, dense_over_gtsam, max_rel_diff}]}``.
-    """
-    from inference.graph import build_graph, factor_covariances, initial_values
-    from inference.params import VariationParams
-    from inference.solve import conditional_marginals, solve
-
-    rng = rng or np.random.default_rng(0)
-    params = VariationParams()
-    rows = []
-    for n in sizes:
-        traj = synthetic_trajectory(n, rng)
-        solve_s, model = _timed(lambda traj=traj: solve(traj, params), repeats)
-        mu_o = traj.T_world_object_mean
-        graph = build_graph(traj, params, factor_covariances(traj, params), mu_o, None, fixed_object=True)
-        values = gtsam.GaussNewtonOptimizer(graph, initial_values(traj, mu_o, fixed_object=True)).optimize()
-        marg_s, (_, _, cov_g) = _timed(
-            lambda g=graph, v=values, n=n, mu=mu_o: conditional_marginals(g, v, mu, n), repeats
-        )
-        dense_s, cov_d = _timed(lambda g=graph, v=values, n=n: _dense_marginals(g, v, n), repeats)
-        rel = float(np.max(np.abs(cov_g - cov_d)) / np.max(np.abs(cov_d)))
-        rows.append(
-            {
-                "T": n,
-                "solve_ms": 1e3 * solve_s,
-                "marginals_ms": 1e3 * marg_s,
-                "dense_ms": 1e3 * dense_s,
-                "dense_over_gtsam": dense_s / marg_s,
-                "max_rel_diff": rel,
-            }
-        )
-    return {"rows": rows}
-
-
-def bench_scene_inference(
-    rows: Sequence[str],
-    trajectory_of: Callable,
-    cache_dir: Path | None,
-    scene_grasp: SceneGraspConfig,
-) -> dict:
-    """Per row, the variation model in the row's scene (:func:`pbdgrasp.scene_model.learn_in_scene`): the
-    solve's wall time with the scene's distance fields built (their build time apart), its LM iterations,
-    convergence and constrained steps; then the final grasp chosen again in the scene
-    (:func:`pbdgrasp.scene_grasp.adapt_final_grasp`, as Table I builds its models): its wall time and
-    whether it kept a re-solved model.
-
-    Args:
-        rows: scene names.
-        trajectory_of: ``row -> Trajectory``, e.g. the row's retargeted strategy.
-        cache_dir: the distance fields' cache is ``cache_dir / "fields"`` (None: in memory only).
-        scene_grasp: the final grasp's settings.
-    """
-    from inference.params import VariationParams
-    from planning.scene import load_scene
-    from planning.scene_fields import scene_fields
-
-    from .scene_model import learn_in_scene
-
-    params = VariationParams()
-    fields_dir = None if cache_dir is None else cache_dir / "fields"
-    out = {}
-    for row in rows:
-        traj = trajectory_of(row)
-        scene = load_scene(row)
-        fields_s, _ = _timed(lambda scene=scene: scene_fields(scene, fields_dir), 1)
-        solve_s, model = _timed(
-            lambda traj=traj, scene=scene: learn_in_scene(traj, scene, params, fields_dir), 1
-        )
-        grasp_s, adapted = _timed(
-            lambda m=model, scene=scene: adapt_final_grasp(m, scene, params, fields_dir, scene_grasp), 1
-        )
-        out[row] = {
-            "T": int(model.num_steps),
-            "solve_s": solve_s,
-            "fields_s": fields_s,
-            "iterations": int(model.iterations),
-            "converged": bool(model.converged),
-            "constrained_steps": int(np.sum(model.constrained)),
-            "scene_grasp_s": grasp_s,
-            "scene_grasp_kept": bool(adapted.source.meta["scene_grasp"]["kept"]),
-        }
-        log.info("bench scene inference %s: %s", row, out[row])
-    return out
-
-
 def bench_sampler(
     model, n: int = 1_000_000, repeats: int = 3, rng: np.random.Generator | None = None
 ) -> dict:
@@ -260,8 +145,8 @@ def bench_sampler(
     rng = rng or np.random.default_rng(0)
     lo, hi = load_scene("ham").bounds_array
     mixture = MixtureSampler([model], lo, hi, 0.05)
-    dt, _ = _timed(lambda: mixture.sample(n, rng), repeats)
-    dt_ref, _ = _timed(lambda: rng.standard_normal((n, Q_DIM)), repeats)  # the machine's speed, for reference
+    dt, _ = timed(lambda: mixture.sample(n, rng), repeats)
+    dt_ref, _ = timed(lambda: rng.standard_normal((n, Q_DIM)), repeats)  # the machine's speed, for reference
     return {"n": n, "samples_per_s": n / dt, "numpy_normals_19d_per_s": n / dt_ref}
 
 
@@ -311,10 +196,10 @@ def bench_quality(repeats_epsilon: int = 200, repeats_close: int = 20) -> dict:
 
     p = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float) / np.sqrt(3.0) * 0.04
     normals = -p / np.linalg.norm(p, axis=1, keepdims=True)
-    eps_s, eps = _timed(lambda: epsilon_l1(p, normals, 0.6, np.zeros(3), 0.04), repeats_epsilon)
+    eps_s, eps = timed(lambda: epsilon_l1(p, normals, 0.6, np.zeros(3), 0.04), repeats_epsilon)
     with World("ham") as world:
         closer = HandCloser(world)
-        close_s, res = _timed(lambda: closer.close(np.array(HAM_GRASP_Q)), repeats_close)
+        close_s, res = timed(lambda: closer.close(np.array(HAM_GRASP_Q)), repeats_close)
     return {
         "epsilon_us": 1e6 * eps_s,
         "epsilon_tetrahedron": float(eps),

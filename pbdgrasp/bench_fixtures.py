@@ -11,7 +11,7 @@ import numpy as np
 
 from assets.q_layout import JOINTS, Q_DIM
 
-__all__ = ["HAM_GRASP_Q", "quick_model", "strategy_model", "synthetic_trajectory"]
+__all__ = ["HAM_GRASP_Q", "quick_model", "strategy_model", "synthetic_trajectory", "timed"]
 
 #: A hand-placed grasp of the ham can from above in the ``ham`` scene (epsilon ~0.17), q (19,) [m, rad];
 #: the grasp of ``tests/test_autograsp.py``. The ham can (10 x 5.5 x 8 cm) stands upright at the origin;
@@ -21,6 +21,16 @@ __all__ = ["HAM_GRASP_Q", "quick_model", "strategy_model", "synthetic_trajectory
 HAM_GRASP_Q = (-0.0293, 0.0485, 0.2687, 2.1136, 1.9704, -0.543,
                1.5019, 0.0, 0.3152, 0.1745, 0.0, 0.0006, 0.1745,
                0.0, 0.0006, 0.1745, 0.0, 0.0006, 0.1745)  # fmt: skip
+
+
+def timed(fn, repeats: int) -> tuple[float, object]:
+    """Median wall time [s] of ``repeats`` calls of ``fn()`` and the last result."""
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
 
 
 def synthetic_trajectory(num_steps: int, rng: np.random.Generator):
