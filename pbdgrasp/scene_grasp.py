@@ -161,7 +161,8 @@ def adapt_final_grasp(
         "tried": [],
         "config": dataclasses.asdict(config),
     }
-    adapted, best_score = model, before[0] * before[1]
+    before_product = before[0] * before[1]
+    adapted, best_score = model, before_product
     T_mean_from_tau = np.linalg.inv(traj.T_object_wrist[-1]) @ T_mean
     for pick in order[: config.resolves]:
         T_cand, J_cand = candidates[pick]
@@ -176,7 +177,7 @@ def adapt_final_grasp(
         margin = config.margin_se * np.hypot(
             product_se(*before, config.accept_draws), product_se(*after, config.accept_draws)
         )
-        if after[0] * after[1] > max(best_score, before[0] * before[1] + margin):
+        if after[0] * after[1] > max(best_score, before_product + margin):
             best_score, adapted = after[0] * after[1], resolved
             info.update(kept=True, candidate=pick)
     info["time_s"] = time.perf_counter() - start
