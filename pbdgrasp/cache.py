@@ -90,9 +90,14 @@ RETARGET_SOURCES = (
     "planning/grasp_quality.py",
 )
 #: The final grasp chosen again in the row's scene (pbdgrasp.scene_grasp): it closes the hand and solves
-#: the model again, so the model's key holds those sources too.
+#: the model again, and measures the models as the planner draws them and follows their means (inspect), so
+#: the model's key holds those sources too.
 SCENE_GRASP_SOURCES = (
     "pbdgrasp/scene_grasp.py",
+    "pbdgrasp/inspect.py",
+    "planning/grasp_planner.py",
+    "planning/collision.py",
+    "planning/config_space.py",
     "pbdgrasp/strategy.py",
     "planning/closing_pool.py",
     "planning/autograsp.py",

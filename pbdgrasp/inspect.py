@@ -7,8 +7,13 @@ checks each for collisions as the planner does (pybullet: every link against the
 obstacles and the hand itself; for the colliding ones, which of them it penetrates and with which links),
 and closes the hand at each of the last step's draws (GraspIt!'s autograsp and the L1 epsilon quality,
 :mod:`planning.autograsp`): the valid fraction of all of them and of the free ones tells a weak grasp from
-draws that collide. The model is placed in the scene's object pose, as the planner places it. The checks
-and closings run on every core (:class:`planning.closing_pool.ClosingPool`), with the same result.
+draws that collide. It also follows the means from step to step as the planner's edges go (linear in
+position and joints, a slerp of the wrist, at the collision checker's resolution) and names the steps where
+that path passes through the table, an obstacle or the hand itself: each step's draws can be free while the
+way from one step's to the next is blocked, and then the planner cannot follow the strategy (the grasped
+object is not counted: a grasp's last means touch it). The model is placed in the scene's object pose, as
+the planner places it. The checks and closings run on every core
+(:class:`planning.closing_pool.ClosingPool`), with the same result.
 """
 
 from __future__ import annotations
@@ -20,16 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
+from assets import sah
 from assets.errors import InputError
+from assets.se3 import q_from_pose
 from inference.model import VariationModel
 from planning.autograsp import HandCloser
 from planning.closing_pool import ClosingPool
+from planning.collision import CollisionChecker
 from planning.grasp_planner import GraspPlanner
 from planning.scene import Scene
 
 from .report import success_interval
 
-__all__ = ["HIT_KINDS", "Inspection", "inspect_model", "plot_free_fraction"]
+__all__ = ["HIT_KINDS", "Inspection", "blocked_mean_steps", "inspect_model", "plot_free_fraction"]
 
 HIT_KINDS = ("object", "environment", "self")
 
@@ -54,6 +62,8 @@ class Inspection:
         epsilon: the validity threshold.
         iterations, converged, solve_time_s: the model's solve (:class:`~inference.model.VariationModel`).
         constrained_steps: how many steps had a clearance factor or a joint-limit site.
+        blocked_mean_steps: the steps t whose edge from the mean of step t to that of step t + 1 passes
+            through the table, an obstacle or the hand itself (:func:`blocked_mean_steps`).
     """
 
     scene: str
@@ -70,6 +80,7 @@ class Inspection:
     converged: bool
     solve_time_s: float
     constrained_steps: int
+    blocked_mean_steps: tuple[int, ...] = ()
 
     def to_json(self) -> str:
         """The measurements as JSON; ``valid_of_free`` is null where no last-step draw was free."""
@@ -109,6 +120,11 @@ class Inspection:
         below = np.flatnonzero(free < 0.5)
         if below.size:
             lines.append(f"steps below 50 % free: {_ranges(below)}")
+        if self.blocked_mean_steps:
+            lines.append(
+                "the means' path passes through the table, an obstacle or the hand from steps "
+                f"{_ranges(np.asarray(self.blocked_mean_steps))} to the next"
+            )
         return "\n".join(lines)
 
 
@@ -139,6 +155,7 @@ def inspect_model(
         checked = pool.map_rows(_penetrations, q)
         last = planner.draw_marginal(1, draws, rng)
         grasps = pool.close_many(last)
+        blocked = blocked_mean_steps(model, planner.world)
     free, hits, links = [], {name: [] for name in HIT_KINDS}, []
     for t in range(model.num_steps):
         step = checked[t * draws : (t + 1) * draws]
@@ -171,7 +188,40 @@ def inspect_model(
         converged=bool(model.converged),
         solve_time_s=float(model.solve_time_s),
         constrained_steps=int(np.sum(model.constrained)),
+        blocked_mean_steps=blocked,
     )
+
+
+def blocked_mean_steps(model: VariationModel, world) -> tuple[int, ...]:
+    """The steps t (0..T-2) whose edge from the mean of step t to the mean of step t + 1 passes through the
+    table, an obstacle or the hand itself in ``world`` (a :class:`planning.world.World` of the scene).
+
+    The means are placed at the scene's object pose with the joints clipped to the SAH's limits, and each
+    edge is checked at :class:`planning.collision.CollisionChecker`'s resolution, the planner's, from its
+    start (step 0's mean included in the first edge) to its end. Penetrations of the grasped object do not
+    count.
+    """
+    T_world_object = world.scene.T_world_object
+    q = [
+        np.r_[
+            q_from_pose(T_world_object @ model.T_object_wrist_mean[t]), sah.clip_joints(model.joints_mean[t])
+        ]
+        for t in range(model.num_steps)
+    ]
+    checker = CollisionChecker(world)
+
+    def blocked(x: np.ndarray) -> bool:
+        return any(
+            c.distance_m < 0 and _kind(c.other, world.scene) != "object" for c in world.hand_contacts(x)
+        )
+
+    out = []
+    for t in range(model.num_steps - 1):
+        world.forget_contacts()  # an edge through the table must not leave its points to the next one
+        points = checker.edge_points(q[t], q[t + 1])
+        if (t == 0 and blocked(q[0])) or any(blocked(x) for x in points):
+            out.append(t)
+    return tuple(out)
 
 
 def _top_links(links: dict[str, float], n: int = 3) -> str:

@@ -11,6 +11,7 @@ from assets.se3 import q_from_pose
 from pbdgrasp.cli import main
 from pbdgrasp.inspect import inspect_model
 from planning.autograsp import HandCloser
+from planning.collision import CollisionChecker
 from planning.scene import load_scene
 from planning.world import World
 
@@ -65,6 +66,28 @@ def test_point_marginals_give_the_collision_state_and_grasp_of_the_means(point_m
     assert result.valid_fraction == 1.0 and result.best_epsilon == pytest.approx(closed.quality, abs=2e-3)
     assert result.valid_of_free == 1.0
     assert result.converged and result.draws == 6 and len(result.free_fraction) == STEPS
+    assert result.blocked_mean_steps == ()  # from above the table onto the ham: only the object is touched
+
+
+def test_a_mean_moved_through_the_table_blocks_the_path_to_it_and_from_it(point_model, quiet_ham):
+    """The means' path (the planner's edges between consecutive means) is blocked exactly on the two edges
+    at a mean moved 30 cm down, through the table; the draws of every other step are as before."""
+    T = point_model.T_object_wrist_mean.copy()
+    T[3, 2, 3] -= 0.3
+    dipped = dataclasses.replace(point_model, T_object_wrist_mean=T)
+    result = inspect_model(dipped, quiet_ham, 2, np.random.default_rng(2))
+    assert result.blocked_mean_steps == (2, 3)
+    fresh = []  # each edge in a world of its own: no contact points kept from the edge through the table
+    for t in range(STEPS - 1):
+        with World(quiet_ham) as world:
+            points = CollisionChecker(world).edge_points(_mean_q(dipped, t), _mean_q(dipped, t + 1))
+            if any(c.distance_m < 0 and c.other != "ham" for x in points for c in world.hand_contacts(x)):
+                fresh.append(t)
+    assert tuple(fresh) == result.blocked_mean_steps
+    assert result.free_fraction[3] == 0.0 and result.hits["environment"][3] == 1.0
+    assert (
+        "the means' path passes through the table, an obstacle or the hand from steps 2-3" in result.summary()
+    )
 
 
 def test_a_model_through_the_table_collides_with_the_table_in_every_draw(point_model, quiet_ham):
@@ -80,6 +103,7 @@ def test_a_model_through_the_table_collides_with_the_table_in_every_draw(point_m
     assert f"valid grasp (95 % interval 0%-{z2 / (4 + z2):.0%};" in result.summary()
     assert np.isnan(result.valid_of_free) and json.loads(result.to_json())["valid_of_free"] is None
     assert all(result.links[t] and set(result.links[t].values()) == {1.0} for t in range(STEPS))
+    assert result.blocked_mean_steps == tuple(range(STEPS - 1))  # every edge inside the table
 
 
 def test_cli_json_plot_and_a_bad_draw_count(point_model, tmp_path, capsys):

@@ -94,8 +94,12 @@ def _install(monkeypatch, probe_q, scores, measures):
         return dataclasses.replace(_model(), source=traj, label=f"candidate {key}")
 
     def fake_inspect(model, scene, draws, rng, processes=None):
-        valid, least_free = measures[model.label]
-        return types.SimpleNamespace(valid_fraction=valid, free_fraction=(1.0, least_free, 0.9))
+        valid, least_free, *blocked = measures[model.label]  # blocked: how many steps' means' edges
+        return types.SimpleNamespace(
+            valid_fraction=valid,
+            free_fraction=(1.0, least_free, 0.9),
+            blocked_mean_steps=tuple(range(blocked[0] if blocked else 0)),
+        )
 
     monkeypatch.setattr(sg, "ClosingPool", FakePool)
     monkeypatch.setattr(sg, "ExpectedQuality", FakeExpected)
@@ -135,6 +139,32 @@ def test_the_model_with_the_largest_valid_times_free_product_is_kept(monkeypatch
     assert info["kept"] is True and info["candidate"] == 2
     assert out.label == "candidate 7"
     assert out.source.meta["scene"] == "demo"  # the trajectory's own meta is kept
+
+
+def test_a_model_whose_means_path_is_blocked_at_more_steps_is_not_kept(monkeypatch):
+    """Candidate 9 has the largest product but its means' path passes through the scene at three steps
+    (ham on an arc: a re-solve passed the wall the other way); candidate 7, blocked nowhere, is kept. A
+    candidate blocked at no more steps than the original is weighed by its product as before."""
+    scores = {-1: 0.005, 9: 0.020, 7: 0.015, 1: 0.012, 4: 0.0, 2: 0.0}
+    measures = {
+        "original": (0.14, 0.51, 0),
+        "candidate 9": (0.245, 0.50, 3),
+        "candidate 7": (0.20, 0.50, 0),
+        "candidate 1": (0.10, 0.40, 0),
+    }
+    _install(monkeypatch, _probe(), scores, measures)
+    out = sg.adapt_final_grasp(_model(), SCENE, params=object(), config=CONFIG)
+    info = out.source.meta["scene_grasp"]
+    assert out.label == "candidate 7" and info["candidate"] == 2
+    assert info["tried"][0] == {
+        "candidate": 1,
+        "valid_fraction": 0.245,
+        "least_free_fraction": 0.50,
+        "blocked_mean_steps": 3,
+    }
+    measures["original"] = (0.14, 0.51, 3)  # blocked as often as candidate 9: the product decides
+    _install(monkeypatch, _probe(), scores, measures)
+    assert sg.adapt_final_grasp(_model(), SCENE, params=object(), config=CONFIG).label == "candidate 9"
 
 
 def test_the_original_stays_when_no_candidate_is_better(monkeypatch):
