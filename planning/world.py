@@ -136,7 +136,7 @@ class World:
         ]
         self._all_joints = [index[name] for name in FLOATING_JOINTS] + [int(i) for i in self._q_index]
         self._all_joints += [m[0] for m in self._mimic]
-        pb.resetJointState(self.hand_id, index["floating_z"], 2.0, physicsClientId=c)  # out of the way
+        pb.resetJointState(self.hand_id, index[FLOATING_JOINTS[2]], 2.0, physicsClientId=c)  # out of the way
         self._bodies = (self.table_id, self.object_id, *self.obstacle_ids)
         excluded = self._excluded if self._excluded is not None else default_excluded_pairs(self.hand)
         links = {name: self.link_index(name) for name in (self.base_name, *self.link_names)}
@@ -205,7 +205,15 @@ class World:
         return self._root_index + 1 + self.link_names.index(name)
 
     def link_name(self, index: int) -> str:
-        """The name of the hand's link at pybullet link index ``index``."""
+        """The name of the hand's link at pybullet link index ``index`` (:meth:`link_index`'s inverse).
+
+        Raises:
+            ValueError: ``index`` is the anchor's or a floating joint's link (they have no geometry).
+        """
+        if index < self._root_index:
+            raise ValueError(
+                f"pybullet link {index} of the hand is not one of its links, but its floating joints'"
+            )
         return self.base_name if index == self._root_index else self.link_names[index - self._root_index - 1]
 
     def hand_contacts(self, q: np.ndarray | None = None, max_distance_m: float = 0.0) -> list[Contact]:

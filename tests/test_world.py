@@ -233,6 +233,8 @@ def test_the_floating_joints_put_the_wrist_at_its_pose(ham_arc):
         R = np.array(pb.getMatrixFromQuaternion(state[5])).reshape(3, 3)
         assert np.abs(R - T[:3, :3]).max() < FK_TOL_M
     assert w.link_name(w.link_index("index_distal")) == "index_distal"
+    with pytest.raises(ValueError, match="floating"):
+        w.link_name(w.link_index(w.base_name) - 1)
 
 
 def test_floating_urdf_needs_one_root(tmp_path):
