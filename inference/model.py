@@ -37,6 +37,7 @@ import numpy as np
 from assets.errors import InputError
 from assets.io import atomic_savez, load_npz, require_finite, require_rotation, require_shape, require_spd
 from assets.q_layout import N_JOINTS, Q_DIM
+from assets.se3 import q_from_pose
 from retarget.trajectory import GRASP_TYPES, Trajectory
 
 from .params import VariationParams
@@ -117,6 +118,12 @@ class VariationModel:
     @property
     def num_steps(self) -> int:
         return self.T_object_wrist_mean.shape[0]
+
+    def world_means(self, T_world_object: np.ndarray) -> np.ndarray:
+        """The means as configurations (T, 19) ``[p (m), rotation vector (rad), joints (rad)]`` with the
+        object at ``T_world_object`` (4, 4), as the planner places a model in a scene."""
+        T_world_wrist = np.asarray(T_world_object, dtype=float) @ self.T_object_wrist_mean
+        return np.concatenate([q_from_pose(T_world_wrist), self.joints_mean], axis=-1)
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the ``.model.npz`` file atomically (temporary file, then rename)."""

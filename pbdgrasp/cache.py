@@ -319,10 +319,7 @@ def prepare_strategy(
 
 def strategy_final_q(strategy: Strategy) -> np.ndarray:
     """The strategy's mean final configuration (19,) in the row's world (for pictures)."""
-    from assets.se3 import q_from_pose
     from inference.model import VariationModel
     from planning.scene import load_scene
 
-    model = VariationModel.load(strategy.model_path)
-    T_world_wrist = load_scene(strategy.row).T_world_object @ model.T_object_wrist_mean[-1]
-    return np.concatenate([q_from_pose(T_world_wrist), model.joints_mean[-1]])
+    return VariationModel.load(strategy.model_path).world_means(load_scene(strategy.row).T_world_object)[-1]

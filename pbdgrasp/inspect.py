@@ -27,7 +27,7 @@ import numpy as np
 
 from assets import sah
 from assets.errors import InputError
-from assets.se3 import q_from_pose
+from assets.q_layout import JOINTS
 from inference.model import VariationModel
 from planning.autograsp import HandCloser
 from planning.closing_pool import ClosingPool
@@ -201,19 +201,12 @@ def blocked_mean_steps(model: VariationModel, world) -> tuple[int, ...]:
     start (step 0's mean included in the first edge) to its end. Penetrations of the grasped object do not
     count.
     """
-    T_world_object = world.scene.T_world_object
-    q = [
-        np.r_[
-            q_from_pose(T_world_object @ model.T_object_wrist_mean[t]), sah.clip_joints(model.joints_mean[t])
-        ]
-        for t in range(model.num_steps)
-    ]
+    q = model.world_means(world.scene.T_world_object)
+    q[:, JOINTS] = sah.clip_joints(q[:, JOINTS])
     checker = CollisionChecker(world)
 
     def blocked(x: np.ndarray) -> bool:
-        return any(
-            c.distance_m < 0 and _kind(c.other, world.scene) != "object" for c in world.hand_contacts(x)
-        )
+        return bool(_hits(world, x)[1] - {"object"})
 
     out = []
     for t in range(model.num_steps - 1):
@@ -232,15 +225,16 @@ def _top_links(links: dict[str, float], n: int = 3) -> str:
 def _penetrations(closer: HandCloser, rows: np.ndarray) -> list[tuple[bool, set[str], set[str]]]:
     """Per configuration: collision-free, and else which :data:`HIT_KINDS` and which links penetrate (a
     :data:`planning.closing_pool.RowsFn`)."""
-    world = closer.world
-    out = []
-    for x in rows:
-        if world.is_free(x):
-            out.append((True, set(), set()))
-            continue
-        inside = [c for c in world.hand_contacts(x) if c.distance_m < 0]
-        out.append((False, {_kind(c.other, world.scene) for c in inside}, {c.link for c in inside}))
-    return out
+    return [_hits(closer.world, x) for x in rows]
+
+
+def _hits(world, x: np.ndarray) -> tuple[bool, set[str], set[str]]:
+    """The hand at ``x`` in ``world``: collision-free, and else which :data:`HIT_KINDS` and which links
+    penetrate."""
+    if world.is_free(x):
+        return True, set(), set()
+    inside = [c for c in world.hand_contacts(x) if c.distance_m < 0]
+    return False, {_kind(c.other, world.scene) for c in inside}, {c.link for c in inside}
 
 
 def _kind(other: str, scene: Scene) -> str:

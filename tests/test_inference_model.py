@@ -10,7 +10,7 @@ import yaml
 
 import inference.params
 from assets.errors import InputError
-from assets.se3 import local
+from assets.se3 import local, pose_from_q
 from inference import VariationModel, VariationParams, build_graph, factor_covariances, initial_values, solve
 from inference.graph import key_j, key_o, key_w
 from retarget.trajectory import Trajectory
@@ -180,6 +180,17 @@ def test_conditioning_on_the_object_equals_the_schur_complement_of_the_joint_mar
             np.abs(local(traj.T_world_object_mean @ model.T_object_wrist_mean[t], W_full)).max() < MEAN_ATOL
         )
     assert np.abs(local(values.atPose3(key_o()).matrix(), traj.T_world_object_mean)).max() < MEAN_ATOL
+
+
+def test_world_means_place_the_wrist_means_at_the_object_pose(make_traj, standin_map):
+    """The configurations map back (pose_from_q) to T_world_object @ T_object_wrist_mean, the joints as
+    they are."""
+    model = solve(make_traj(n=4, seed=3), fingertip_map=standin_map)
+    T_world_object = pose_from_q(np.array([0.1, -0.2, 0.75, 0.3, -1.2, 2.0]))
+    q = model.world_means(T_world_object)
+    assert q.shape == (4, 19)
+    np.testing.assert_allclose(pose_from_q(q), T_world_object @ model.T_object_wrist_mean, atol=1e-12)
+    np.testing.assert_array_equal(q[:, 6:], model.joints_mean)
 
 
 def test_save_load_roundtrip(make_traj, standin_map, tmp_path):

@@ -212,8 +212,7 @@ class StrategyViewer:
 
     def mean_q(self, label: str, k: int) -> np.ndarray:
         """The configuration (19,) of model ``label``'s mean at step k in the world frame."""
-        model = self.models[label]
-        return self._world_q(model.T_object_wrist_mean[k], model.joints_mean[k])
+        return self.models[label].world_means(self.scene.T_world_object)[k]
 
     def show_step(self, label: str, k: int) -> None:
         """Put the hand at model ``label``'s mean of step k and show that step's ellipsoids."""
