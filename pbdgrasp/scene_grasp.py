@@ -46,6 +46,7 @@ import dataclasses
 import logging
 import os
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -105,6 +106,24 @@ def product_se(valid: float, free: float, n: int) -> float:
     return float(np.sqrt((free**2 * valid * (1 - valid) + valid**2 * free * (1 - free)) / n))
 
 
+class _Measured(NamedTuple):
+    """What the keep rule compares of a model: its last step's valid fraction, the least free fraction of
+    any step, and how many steps' means' edges to the next are blocked (by anything but the grasped
+    object)."""
+
+    valid_fraction: float
+    least_free_fraction: float
+    blocked_mean_steps: int
+
+    @property
+    def product(self) -> float:
+        return self.valid_fraction * self.least_free_fraction
+
+    def se(self, n: int) -> float:
+        """:func:`product_se` of the two fractions, each of ``n`` draws."""
+        return product_se(self.valid_fraction, self.least_free_fraction, n)
+
+
 def _expected(closer, scene: Scene, cov: np.ndarray, n: int, seed: int) -> ExpectedQuality:
     rng = np.random.default_rng(seed)
     return ExpectedQuality(closer, scene.T_world_object, scene.cov_object, cov, n, rng)
@@ -150,27 +169,21 @@ def adapt_final_grasp(
         scores = np.array([score(T, J) for T, J in candidates])
     order = [int(i) for i in np.argsort(-scores, kind="stable") if i > 0 and scores[i] > scores[0]]
 
-    def measure(m: VariationModel) -> tuple[float, float, int]:
-        """The last step's valid fraction, the least free fraction of any step and the number of steps
-        whose means' edge to the next is blocked (by anything but the grasped object)."""
+    def measure(m: VariationModel) -> _Measured:
         rng = np.random.default_rng(config.seed + 2)  # the same draws' generator for every model
         found = inspect_model(m, scene, config.accept_draws, rng, processes=processes)
-        return found.valid_fraction, min(found.free_fraction), len(found.blocked_mean_steps)
-
-    def entry(found: tuple[float, float, int]) -> dict:
-        return dict(zip(("valid_fraction", "least_free_fraction", "blocked_mean_steps"), found, strict=True))
+        return _Measured(found.valid_fraction, min(found.free_fraction), len(found.blocked_mean_steps))
 
     before = measure(model)
     info = {
         "kept": False,
         "probe_valid_fraction": float(np.mean(q_probe >= 0.05)),
         "candidate_scores": [float(x) for x in scores],
-        "before": entry(before),
+        "before": before._asdict(),
         "tried": [],
         "config": dataclasses.asdict(config),
     }
-    before_product = before[0] * before[1]
-    adapted, best_score = model, before_product
+    adapted, best_score = model, before.product
     T_mean_from_tau = np.linalg.inv(traj.T_object_wrist[-1]) @ T_mean
     for pick in order[: config.resolves]:
         T_cand, J_cand = candidates[pick]
@@ -181,12 +194,11 @@ def adapt_final_grasp(
         moved = dataclasses.replace(traj, T_object_wrist=T_blend, joints=J_blend, path=None)
         resolved = learn_in_scene(moved, scene, params, cache_dir)
         after = measure(resolved)
-        info["tried"].append({"candidate": pick, **entry(after)})
-        margin = config.margin_se * np.hypot(
-            product_se(*before[:2], config.accept_draws), product_se(*after[:2], config.accept_draws)
-        )
-        if after[2] <= before[2] and after[0] * after[1] > max(best_score, before_product + margin):
-            best_score, adapted = after[0] * after[1], resolved
+        info["tried"].append({"candidate": pick, **after._asdict()})
+        margin = config.margin_se * np.hypot(before.se(config.accept_draws), after.se(config.accept_draws))
+        clear = after.blocked_mean_steps <= before.blocked_mean_steps
+        if clear and after.product > max(best_score, before.product + margin):
+            best_score, adapted = after.product, resolved
             info.update(kept=True, candidate=pick)
     info["time_s"] = time.perf_counter() - start
     log.info("scene grasp in %s: %s", scene.name, info)
